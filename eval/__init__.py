@@ -1,0 +1,1 @@
+"""vislam.eval: data sets, simulation, metrics, consistency, benchmark, plots, command line."""

@@ -1,0 +1,11 @@
+"""`vislam inspect` (not yet implemented)."""
+
+from ekf.errors import InputError
+
+
+def add_arguments(parser):
+    pass
+
+
+def run(args):
+    raise InputError("vislam inspect is not implemented yet")

@@ -1,0 +1,11 @@
+"""`vislam simulate` (not yet implemented)."""
+
+from ekf.errors import InputError
+
+
+def add_arguments(parser):
+    pass
+
+
+def run(args):
+    raise InputError("vislam simulate is not implemented yet")
