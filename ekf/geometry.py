@@ -64,14 +64,35 @@ def curly_hat(xi: np.ndarray) -> np.ndarray:
     return out
 
 
+_SERIES = 0.1  # below this angle the coefficients use Taylor series (no cancellation)
+
+
+def _series(theta: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:
+    t2 = theta * theta
+    out = np.zeros_like(theta)
+    for c in reversed(coeffs):
+        out = out * t2 + c
+    return out
+
+
 def _theta_coeffs(theta: np.ndarray):
-    """A = sin t / t, B = (1 - cos t) / t^2, C = (t - sin t) / t^3, with Taylor series near 0."""
-    small = theta < _SMALL
+    """A = sin t / t, B = (1 - cos t) / t^2, C = (t - sin t) / t^3.
+
+    The closed forms of B and C cancel catastrophically for small t (1e-5 rad loses about
+    six digits), so below ``_SERIES`` they come from Taylor series accurate to 1e-16.
+    """
+    small = theta < _SERIES
     t = np.where(small, 1.0, theta)
     t2 = t * t
-    A = np.where(small, 1.0 - theta**2 / 6.0, np.sin(t) / t)
-    B = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(t)) / t2)
-    C = np.where(small, 1.0 / 6.0 - theta**2 / 120.0, (t - np.sin(t)) / (t2 * t))
+    A = np.where(small, _series(theta, (1.0, -1 / 6, 1 / 120, -1 / 5040, 1 / 362880)), np.sin(t) / t)
+    B = np.where(
+        small, _series(theta, (1 / 2, -1 / 24, 1 / 720, -1 / 40320, 1 / 3628800)), (1.0 - np.cos(t)) / t2
+    )
+    C = np.where(
+        small,
+        _series(theta, (1 / 6, -1 / 120, 1 / 5040, -1 / 362880, 1 / 39916800)),
+        (t - np.sin(t)) / (t2 * t),
+    )
     return A, B, C
 
 
@@ -89,8 +110,9 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     """Rotation matrix (..., 3, 3) -> rotation vector (..., 3) with angle in [0, pi]."""
     R = np.asarray(R, dtype=float)
     cos_t = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    theta = np.arccos(cos_t)
     skew = vee(R - np.swapaxes(R, -1, -2)) / 2.0  # = sin(theta) * axis
+    # atan2 keeps full precision for small angles, where arccos(cos) loses half the digits.
+    theta = np.arctan2(np.linalg.norm(skew, axis=-1), cos_t)
     small = theta < _SMALL
     near_pi = theta > np.pi - 1e-3
     sin_t = np.sin(theta)
@@ -126,11 +148,11 @@ def so3_left_jacobian_inv(phi: np.ndarray) -> np.ndarray:
     """Inverse of :func:`so3_left_jacobian`."""
     phi = np.asarray(phi, dtype=float)
     theta = np.linalg.norm(phi, axis=-1)
-    small = theta < _SMALL
+    small = theta < _SERIES
     t = np.where(small, 1.0, theta)
     D = np.where(
         small,
-        1.0 / 12.0 + theta**2 / 720.0,
+        _series(theta, (1 / 12, 1 / 720, 1 / 30240, 1 / 1209600, 1 / 47900160)),
         (1.0 - t * np.sin(t) / (2.0 * (1.0 - np.cos(t)))) / (t * t),
     )
     W = hat(phi)
