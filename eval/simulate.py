@@ -1,0 +1,475 @@
+"""A KITTI-like simulated drive with exact ground truth.
+
+The drive
+---------
+A car at 10 Hz, 5-12 m/s, moving forward along its body x axis (IMU frame: x forward, y left,
+z up), on smooth curves (yaw rates up to about 0.3 rad/s) and gentle slopes (pitch within a few
+degrees). Speed, yaw rate and pitch angle are smooth random functions of time (monotone cubic
+interpolation, PCHIP, through random knots, so they never leave the knots' range); the body
+angular velocity follows from the Z-Y-X Euler kinematics with zero roll,
+``w = [-psi' sin(theta), theta', psi' cos(theta)]``, and the body linear velocity is
+``[speed, 0, 0]``. ``true_velocities[k]`` is this instantaneous twist ``u_k`` at ``t_k``.
+
+Velocity pairing (documented convention, exact on noise-free data)
+------------------------------------------------------------------
+The true motion over ``[t_k, t_{k+1}]`` is the constant body twist equal to the **mean** of the
+instantaneous twists at the two ends::
+
+    world_T_imu(k+1) = world_T_imu(k) @ se3_exp(tau_k * (u_k + u_{k+1}) / 2)
+
+so a filter using ``FilterConfig(velocity_pairing="mean")`` integrates the noise-free
+velocities into the true poses exactly (to rounding). The world frame is the IMU frame at
+frame 0 (pitch and yaw are zero there, so world z is up).
+
+Measurements
+------------
+* Velocities: ``u_k + N(0, diag(velocity_sigma^2 I3, gyro_sigma^2 I3))`` plus a constant gyro
+  bias on the angular part.
+* Landmarks stand on both sides of the path (lateral offset 4-20 m, height -1..8 m relative to
+  the IMU) plus a share of far points (lateral 20-50 m, height -1..15 m). A landmark is visible
+  when its depth in the left camera is 3-60 m and both its projections fall in the 1241x376 px
+  image. A visible landmark without a track starts one with probability ``detect_probability``
+  per frame (every visible landmark at frame 0); the track lasts a geometric number of frames
+  (mean ``mean_track_length``) and ends earlier when the landmark leaves the view. A track once
+  ended is never observed again; a landmark seen again later gets a new track index, as in the
+  real data. Track indices are numbered in order of their first frame.
+* Stereo pixels: ``z = M pi(cam_T_imu @ inv(world_T_imu) @ m)`` (paper eq. 1-3) plus
+  ``N(0, pixel_sigma^2)`` on each of uL, vL, uR, vR; an observation whose noisy disparity falls
+  below ``min_disparity`` is dropped and ends its track.
+
+``noise_free=True`` zeroes every noise (pixels, velocities, gyro bias). The random streams of
+the trajectory, the landmarks, the tracks, the velocity noise and the pixel noise are separate
+children of one ``SeedSequence(seed)``, so for one seed the noise-free drive is the ground truth
+of the noisy one.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+
+from ekf.camera import project
+from ekf.errors import InputError
+from ekf.geometry import homogeneous, se3_exp, se3_inv
+from ekf.sequence import Calibration, Observations, Sequence
+from eval.export import FLOAT_FORMAT, atomic_write, save_npz_reproducible
+
+log = logging.getLogger(__name__)
+
+#: KITTI left camera intrinsics of the shared drives (rectified).
+KITTI_K = np.array([[707.0912, 0.0, 601.8873], [0.0, 707.0912, 183.1104], [0.0, 0.0, 1.0]])
+#: KITTI stereo baseline of the shared drives (m).
+KITTI_BASELINE = 0.5371506532679237
+#: ``cam_T_imu`` copied exactly from the shared drive 0027.npz.
+KITTI_CAM_T_IMU = np.array(
+    [
+        [-1.0886351426112831e-03, -9.9997634720088269e-01, 6.7871818004070234e-03, 1.1438987057554275e00],
+        [-8.5120721364696054e-03, -6.7776711518013708e-03, -9.9994087157728695e-01, -3.1271847125070873e-01],
+        [9.9996317699677706e-01, -1.1463429256237557e-03, -8.5044931029854397e-03, 7.2654604549397805e-01],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+)
+#: KITTI image size (px).
+KITTI_IMAGE_SIZE = (1241, 376)
+
+#: Extra path (m) simulated beyond the last frame so landmarks ahead of it exist.
+_LOOKAHEAD_M = 80.0
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Every setting of the simulator; the defaults give a quick KITTI-like drive (60 s)."""
+
+    seed: int = 0
+    n_frames: int = 600
+    rate_hz: float = 10.0
+    name: str = "sim"
+    # The drive.
+    speed_min: float = 5.0
+    speed_max: float = 12.0
+    max_yaw_rate: float = 0.3
+    #: Share of yaw-rate knots that are exactly straight (zero yaw rate).
+    straight_fraction: float = 0.4
+    max_pitch_deg: float = 3.0
+    #: Spacing (s) of the random knots of speed and yaw rate (pitch: twice this).
+    knot_spacing_s: float = 4.0
+    # Velocity noise, per sample (the shared data: about 0.5 m/s and 0.05 rad/s).
+    velocity_sigma: float = 0.5
+    gyro_sigma: float = 0.05
+    #: Constant gyro bias (rad/s), one value per axis.
+    gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # Stereo.
+    pixel_sigma: float = 1.0
+    #: Landmarks per metre of path (both sides together).
+    landmark_density: float = 3.0
+    #: Share of landmarks placed far from the road (lateral 20-50 m).
+    far_fraction: float = 0.2
+    min_depth: float = 3.0
+    max_depth: float = 60.0
+    min_disparity: float = 0.5
+    mean_track_length: float = 10.0
+    #: Probability per frame that a visible landmark without a track starts one.
+    detect_probability: float = 0.3
+    noise_free: bool = False
+
+    def __post_init__(self) -> None:
+        if self.n_frames < 2:
+            raise InputError(f"simulation: n_frames must be at least 2, got {self.n_frames}")
+        positive = ("rate_hz", "speed_min", "landmark_density", "mean_track_length", "max_depth")
+        for key in positive:
+            value = getattr(self, key)
+            if not np.isfinite(value) or value <= 0:
+                raise InputError(f"simulation: {key} must be positive, got {value!r}")
+        nonneg = ("velocity_sigma", "gyro_sigma", "pixel_sigma", "max_yaw_rate", "max_pitch_deg")
+        for key in nonneg:
+            value = getattr(self, key)
+            if not np.isfinite(value) or value < 0:
+                raise InputError(f"simulation: {key} must be >= 0, got {value!r}")
+        if self.speed_max < self.speed_min:
+            raise InputError(
+                f"simulation: speed_max {self.speed_max} is below speed_min {self.speed_min}"
+            )
+        for key in ("straight_fraction", "far_fraction", "detect_probability"):
+            value = getattr(self, key)
+            if not 0.0 <= value <= 1.0:
+                raise InputError(f"simulation: {key} must be in [0, 1], got {value!r}")
+        if self.mean_track_length < 1:
+            raise InputError(
+                f"simulation: mean_track_length must be >= 1, got {self.mean_track_length}"
+            )
+        if not 0 < self.min_depth < self.max_depth:
+            raise InputError(
+                f"simulation: need 0 < min_depth < max_depth, got {self.min_depth}, {self.max_depth}"
+            )
+        bias = np.asarray(self.gyro_bias, dtype=float)
+        if bias.shape != (3,) or not np.all(np.isfinite(bias)):
+            raise InputError(f"simulation: gyro_bias must be 3 finite numbers, got {self.gyro_bias!r}")
+        object.__setattr__(self, "gyro_bias", tuple(float(x) for x in bias))
+
+
+#: The benchmark's default simulated drive (seed 0, 600 frames).
+DEFAULT_SIM = SimConfig()
+
+
+@dataclass
+class SimResult:
+    """A simulated drive and its ground truth.
+
+    ``sequence`` the measurements, as the loader builds them from the written file;
+    ``poses`` (T, 4, 4) true ``world_T_imu`` (world = IMU at frame 0);
+    ``landmarks`` (n_tracks, 3) true world position of the landmark of each track index;
+    ``true_velocities`` (T, 6) noise-free instantaneous body twists ``[v; w]`` at each sample;
+    ``track_landmark`` (n_tracks,) which landmark each track observes;
+    ``landmark_points`` (n_landmarks, 3) every landmark placed;
+    ``config`` the settings that made it.
+    """
+
+    sequence: Sequence
+    poses: np.ndarray
+    landmarks: np.ndarray
+    true_velocities: np.ndarray
+    track_landmark: np.ndarray
+    landmark_points: np.ndarray
+    config: SimConfig = field(default_factory=SimConfig)
+
+
+def default_simulation(seed: int = 0) -> SimResult:
+    """The benchmark's default drive for ``seed``."""
+    return simulate(SimConfig(**{**DEFAULT_SIM.__dict__, "seed": int(seed)}))
+
+
+def default_sequence(seed: int = 0) -> Sequence:
+    """The measurements of :func:`default_simulation`."""
+    return default_simulation(seed).sequence
+
+
+# --------------------------------------------------------------------------- the drive
+
+
+def _smooth_profile(rng, t_end: float, spacing: float, draw) -> PchipInterpolator:
+    """A PCHIP curve through knots every ``spacing`` seconds with values ``draw(n)``."""
+    n = int(np.ceil(t_end / spacing)) + 2
+    knots_t = np.arange(n) * spacing
+    return PchipInterpolator(knots_t, draw(n))
+
+
+def _instantaneous_twists(config: SimConfig, rng, t: np.ndarray) -> np.ndarray:
+    """Body twists (n, 6) at times ``t``: forward speed, Euler-kinematics angular velocity."""
+    span = float(t[-1]) + 1.0
+    speed = _smooth_profile(
+        rng, span, config.knot_spacing_s, lambda n: rng.uniform(config.speed_min, config.speed_max, n)
+    )
+
+    def yaw_knots(n):
+        rates = rng.uniform(-config.max_yaw_rate, config.max_yaw_rate, n)
+        return np.where(rng.random(n) < config.straight_fraction, 0.0, rates)
+
+    yaw_rate = _smooth_profile(rng, span, config.knot_spacing_s, yaw_knots)
+    max_pitch = np.deg2rad(config.max_pitch_deg)
+
+    def pitch_knots(n):
+        values = rng.uniform(-max_pitch, max_pitch, n)
+        values[0] = 0.0  # level at frame 0, so the world z axis is up
+        return values
+
+    pitch = _smooth_profile(rng, span, 2.0 * config.knot_spacing_s, pitch_knots)
+    theta, dtheta, dpsi = pitch(t), pitch.derivative()(t), yaw_rate(t)
+    u = np.zeros((t.size, 6))
+    u[:, 0] = speed(t)
+    u[:, 3] = -dpsi * np.sin(theta)
+    u[:, 4] = dtheta
+    u[:, 5] = dpsi * np.cos(theta)
+    return u
+
+
+def integrate_mean_pairing(twists: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """Poses (T, 4, 4) from identity with the constant twist ``(u_k + u_{k+1}) / 2`` on each
+    interval ``[k, k+1]`` of length ``dt[k]``: the simulator's definition of the true motion."""
+    twists = np.asarray(twists, dtype=float)
+    steps = se3_exp(np.asarray(dt, dtype=float)[:, None] * 0.5 * (twists[:-1] + twists[1:]))
+    poses = np.empty((twists.shape[0], 4, 4))
+    poses[0] = np.eye(4)
+    for k, step in enumerate(steps):
+        poses[k + 1] = poses[k] @ step
+    return poses
+
+
+# --------------------------------------------------------------------------- landmarks
+
+
+def _place_landmarks(config: SimConfig, rng, poses: np.ndarray) -> np.ndarray:
+    """Landmarks (N, 3) along both sides of the path of ``poses``, sorted by arc length."""
+    pos = poses[:, :3, 3]
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
+    n = int(round(config.landmark_density * arc[-1]))
+    s = np.sort(rng.uniform(0.0, arc[-1], n))
+    # Fractional frame index of each arc length; positions and headings interpolated there.
+    f = np.interp(s, arc, np.arange(arc.size))
+    i0 = np.minimum(np.floor(f).astype(int), arc.size - 2)
+    a = (f - i0)[:, None]
+    base = (1 - a) * pos[i0] + a * pos[i0 + 1]
+    forward = (1 - a) * poses[i0, :3, 0] + a * poses[i0 + 1, :3, 0]
+    left = np.stack([-forward[:, 1], forward[:, 0], np.zeros(n)], axis=1)
+    left /= np.linalg.norm(left, axis=1, keepdims=True)
+    far = rng.random(n) < config.far_fraction
+    side = np.where(rng.random(n) < 0.5, -1.0, 1.0)
+    lateral = np.where(far, rng.uniform(20.0, 50.0, n), rng.uniform(4.0, 20.0, n)) * side
+    height = np.where(far, rng.uniform(-1.0, 15.0, n), rng.uniform(-1.0, 8.0, n))
+    return base + lateral[:, None] * left + height[:, None] * np.array([0.0, 0.0, 1.0])
+
+
+# --------------------------------------------------------------------------- observations
+
+
+def _observe(config: SimConfig, rng_tracks, rng_pixels, poses, points, calib: Calibration):
+    """Run the tracker over the first ``len(poses)`` frames.
+
+    Returns rows (frame, track, z) of the observations, the noise-free pixels of those rows,
+    and the landmark of each track index.
+    """
+    M = calib.M
+    width, height = KITTI_IMAGE_SIZE
+    n_pts = points.shape[0]
+    sigma = 0.0 if config.noise_free else config.pixel_sigma
+    p_len = 1.0 / config.mean_track_length
+    active = np.zeros(n_pts, dtype=bool)
+    track_of = np.full(n_pts, -1, dtype=np.int64)
+    remaining = np.zeros(n_pts, dtype=np.int64)
+    track_landmark: list[np.ndarray] = []
+    next_id = 0
+    rows_f, rows_t, rows_z, rows_z0 = [], [], [], []
+    cam_T_world = calib.cam_T_imu @ se3_inv(poses)
+    for k in range(poses.shape[0]):
+        q = points @ cam_T_world[k, :3, :3].T + cam_T_world[k, :3, 3]
+        depth = q[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z0 = project(M, homogeneous(q))  # paper eq. 1-3
+        visible = (
+            (depth >= config.min_depth)
+            & (depth <= config.max_depth)
+            & (z0[:, 0] >= 0)
+            & (z0[:, 0] <= width - 1)
+            & (z0[:, 2] >= 0)
+            & (z0[:, 1] >= 0)
+            & (z0[:, 1] <= height - 1)
+        )
+        keep = active & visible & (remaining > 0)
+        ended = active & ~keep
+        p_detect = 1.0 if k == 0 else config.detect_probability
+        start = ~active & ~ended & visible & (rng_tracks.random(n_pts) < p_detect)
+        seen = np.flatnonzero(keep | start)
+        z = z0[seen] + sigma * rng_pixels.standard_normal((seen.size, 4))
+        ok = z[:, 0] - z[:, 2] >= config.min_disparity
+        seen, z = seen[ok], z[ok]
+        is_new = start[seen]
+        new = seen[is_new]
+        track_of[new] = next_id + np.arange(new.size)
+        remaining[new] = rng_tracks.geometric(p_len, new.size)
+        track_landmark.append(new)
+        next_id += new.size
+        active[:] = False
+        active[seen] = True
+        remaining[seen] -= 1
+        rows_f.append(np.full(seen.size, k, dtype=np.int64))
+        rows_t.append(track_of[seen])
+        rows_z.append(z)
+        rows_z0.append(z0[seen])
+    return (
+        np.concatenate(rows_f),
+        np.concatenate(rows_t),
+        np.concatenate(rows_z),
+        np.concatenate(rows_z0),
+        np.concatenate(track_landmark),
+    )
+
+
+# --------------------------------------------------------------------------- entry points
+
+
+def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
+    """Simulate one drive (see the module docstring for the model)."""
+    streams = [np.random.default_rng(s) for s in np.random.SeedSequence(config.seed).spawn(5)]
+    rng_drive, rng_landmarks, rng_tracks, rng_velocity, rng_pixels = streams
+    dt = 1.0 / config.rate_hz
+    # Simulate past the last frame so that landmarks exist up to max_depth ahead of it.
+    n_extra = int(np.ceil((_LOOKAHEAD_M + config.max_depth) / config.speed_min * config.rate_hz))
+    n_all = config.n_frames + n_extra
+    t_all = np.arange(n_all) * dt
+    u_all = _instantaneous_twists(config, rng_drive, t_all)
+    poses_all = integrate_mean_pairing(u_all, np.full(n_all - 1, dt))
+    points = _place_landmarks(config, rng_landmarks, poses_all)
+
+    T = config.n_frames
+    poses, u_true, timestamps = poses_all[:T], u_all[:T], t_all[:T]
+    calib = Calibration(K=KITTI_K.copy(), baseline=KITTI_BASELINE, cam_T_imu=KITTI_CAM_T_IMU.copy())
+    frame, track, z, _, track_landmark = _observe(
+        config, rng_tracks, rng_pixels, poses, points, calib
+    )
+
+    noise = np.zeros((T, 6))
+    if not config.noise_free:
+        noise[:, :3] = config.velocity_sigma * rng_velocity.standard_normal((T, 3))
+        noise[:, 3:] = config.gyro_sigma * rng_velocity.standard_normal((T, 3))
+        noise[:, 3:] += np.asarray(config.gyro_bias)
+    u_meas = u_true + noise
+
+    n_tracks = int(track_landmark.size)
+    sequence = Sequence(
+        name=config.name,
+        timestamps=timestamps.copy(),
+        linear_velocity=u_meas[:, :3].copy(),
+        angular_velocity=u_meas[:, 3:].copy(),
+        obs=Observations.from_rows(frame, track, z, T),
+        n_tracks=n_tracks,
+        calibration=calib,
+    )
+    log.info(
+        "simulated %s: %d frames, %d landmarks, %d tracks, %d observations",
+        config.name,
+        T,
+        points.shape[0],
+        n_tracks,
+        frame.size,
+    )
+    return SimResult(
+        sequence=sequence,
+        poses=poses,
+        landmarks=points[track_landmark],
+        true_velocities=u_true,
+        track_landmark=track_landmark,
+        landmark_points=points,
+        config=config,
+    )
+
+
+def camera_groundtruth(poses: np.ndarray, cam_T_imu: np.ndarray) -> np.ndarray:
+    """KITTI ground truth: left-camera poses in the left-camera frame of frame 0,
+    ``P(k) = cam_T_imu @ T_imu(k) @ inv(cam_T_imu)`` (the shared data's README).
+
+    The general matrix inverse is deliberate: the shared ``cam_T_imu`` is orthonormal only to
+    about 1e-7, and only the exact inverse makes ``P(0)`` the identity and lets a reader recover
+    ``T_imu(k) = inv(cam_T_imu) @ P(k) @ cam_T_imu`` to rounding."""
+    return cam_T_imu @ poses @ np.linalg.inv(cam_T_imu)
+
+
+def write_simulation(
+    result: SimResult, out_dir: str | os.PathLike, name: str | None = None
+) -> dict[str, Path]:
+    """Write a drive as the shared data lays it out; returns the paths by role.
+
+    * ``data``: ``out_dir/NAME.npz``, the real data's keys and shapes (features (4, M, T) with
+      -1 where unobserved, time_stamps (1, T), linear/rotational_velocity (3, T), K, b,
+      cam_T_imu);
+    * ``groundtruth``: ``out_dir/groundtruth/NAME.txt``, KITTI poses of the left camera with the
+      time since frame 0 prepended (13 columns);
+    * ``landmarks``: ``out_dir/NAME_landmarks.npz`` with ``landmarks`` (n_tracks, 3) the true
+      world position per track index (world = IMU at frame 0), ``track_landmark``
+      (n_tracks,), ``landmark_points`` (n_landmarks, 3), ``poses`` (T, 4, 4) true world_T_imu
+      and ``true_velocities`` (T, 6).
+
+    Files carry no write time: the same result always gives the same bytes.
+    """
+    seq = result.sequence
+    name = name or seq.name
+    out_dir = Path(out_dir)
+    calib = seq.calibration
+    data = {
+        "time_stamps": seq.timestamps[None, :],
+        "features": seq.obs.to_dense(seq.n_tracks),
+        "linear_velocity": seq.linear_velocity.T,
+        "rotational_velocity": seq.angular_velocity.T,
+        "K": calib.K,
+        "b": np.array(calib.baseline),
+        "cam_T_imu": calib.cam_T_imu,
+    }
+    paths = {
+        "data": save_npz_reproducible(out_dir / f"{name}.npz", data),
+    }
+    gt = camera_groundtruth(result.poses, calib.cam_T_imu)
+    rows = np.concatenate(
+        [(seq.timestamps - seq.timestamps[0])[:, None], gt[:, :3, :4].reshape(-1, 12)], axis=1
+    )
+    paths["groundtruth"] = atomic_write(
+        out_dir / "groundtruth" / f"{name}.txt",
+        lambda fh: np.savetxt(fh, rows, fmt=FLOAT_FORMAT, delimiter=" "),
+    )
+    paths["landmarks"] = save_npz_reproducible(
+        out_dir / f"{name}_landmarks.npz",
+        {
+            "landmarks": result.landmarks,
+            "track_landmark": result.track_landmark,
+            "landmark_points": result.landmark_points,
+            "poses": result.poses,
+            "true_velocities": result.true_velocities,
+        },
+    )
+    return paths
+
+
+def simulation_stats(result: SimResult) -> dict[str, float]:
+    """Summary figures of a drive: observations per frame, track lengths, speed, depth."""
+    seq = result.sequence
+    per_frame = seq.obs.per_frame
+    lengths = seq.track_lengths()
+    speed = np.linalg.norm(result.true_velocities[:, :3], axis=1)
+    pos = result.poses[:, :3, 3]
+    return {
+        "frames": float(seq.n_frames),
+        "tracks": float(seq.n_tracks),
+        "observations": float(len(seq.obs)),
+        "obs_per_frame_mean": float(per_frame.mean()),
+        "obs_per_frame_min": float(per_frame.min()),
+        "obs_per_frame_max": float(per_frame.max()),
+        "track_length_mean": float(lengths.mean()) if lengths.size else 0.0,
+        "track_length_median": float(np.median(lengths)) if lengths.size else 0.0,
+        "speed_min": float(speed.min()),
+        "speed_mean": float(speed.mean()),
+        "speed_max": float(speed.max()),
+        "yaw_rate_max_abs": float(np.abs(result.true_velocities[:, 5]).max()),
+        "path_length_m": float(np.sum(np.linalg.norm(np.diff(pos, axis=0), axis=1))),
+    }
