@@ -1,0 +1,261 @@
+"""Joint EKF SLAM: one state ``[d, (b_g), m_1 .. m_n]`` with the full joint covariance.
+
+* State: the inverse IMU pose ``U`` (left perturbation ``d``, paper convention), optionally a
+  gyro bias ``b_g`` (rad/s, random walk; the prediction uses ``w - b_g``), and the landmarks of
+  the *active* tracks. Layout of the covariance ``P``: pose rows 0:6, bias rows 6:9 when
+  ``config.gyro_bias``, then 3 rows per active landmark in slot order.
+* Prediction (paper eq. 11): pose/bias block ``Phi P Phi^T + Q``, cross block ``Phi P_cx``.
+* Update: every accepted observation of the frame in one stacked update, with the lossless
+  3-row stereo reduction of :mod:`ekf.stereo_update`; ``P <- P - Y^T Y`` with
+  ``Y = L^-1 (P H^T)^T``, ``L L^T = S`` (Cholesky), which is ``P - K S K^T`` (the Joseph form's
+  value for the optimal gain) at a fraction of its cost; ``P`` is symmetrised after each step.
+* New landmarks: ``m = U^-1 imu_T_cam p_cam(z)`` with covariance ``J_d P_dd J_d^T + J_z V J_z^T``
+  and cross-covariance ``J_d P_d,x`` to the pose, bias and every other active landmark.
+* Tracks whose last observation has passed are marginalised out (deleting their rows and
+  columns is exact for a Gaussian); their final mean and 3x3 covariance go to the map.
+  ``config.keep_landmarks`` keeps every landmark in the state instead (textbook EKF SLAM;
+  O(n^2) memory, for small problems).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import cholesky, solve_triangular
+
+from ekf.config import FilterConfig
+from ekf.errors import EstimationError
+from ekf.estimate import Estimate
+from ekf.geometry import se3_exp
+from ekf.prediction import (
+    bias_transition,
+    predict_mean,
+    prediction_jacobian,
+    process_noise,
+)
+from ekf.runner import (
+    Progress,
+    StepRecorder,
+    blas_limits,
+    build_estimate,
+    interval_twists,
+    prepare_sequence,
+    report_progress,
+    tracks_ending,
+)
+from ekf.sequence import Sequence
+from ekf.stereo_update import StereoModel
+
+_AR3 = np.arange(3)
+
+
+class JointState:
+    """Mean and joint covariance of ``[pose, (gyro bias), active landmarks]``."""
+
+    def __init__(self, config: FilterConfig, n_tracks: int):
+        self.core = 9 if config.gyro_bias else 6
+        self.U = np.eye(4)
+        self.bias = np.zeros(3)
+        self.P = np.zeros((self.core, self.core))
+        self.P[:6, :6] = config.initial_pose_cov
+        if config.gyro_bias:
+            self.P[6:, 6:] = config.gyro_bias_sigma**2 * np.eye(3)
+        self.lm_mean = np.zeros((0, 3))
+        self.lm_track = np.zeros(0, dtype=np.int64)
+        self.slot = -np.ones(n_tracks, dtype=np.int64)
+        self.ever = np.zeros(n_tracks, dtype=bool)
+        # The map: final landmark means and covariances (NaN where none).
+        self.map_mean = np.full((n_tracks, 3), np.nan)
+        self.map_cov = np.full((n_tracks, 3, 3), np.nan)
+
+    @property
+    def n_landmarks(self) -> int:
+        return int(self.lm_track.size)
+
+    def landmark_rows(self, slots: np.ndarray) -> np.ndarray:
+        """Rows of ``P`` (k, 3) for landmark slots (k,)."""
+        return self.core + 3 * slots[:, None] + _AR3
+
+    # --- prediction ---------------------------------------------------------------------
+    def predict(self, tau: float, u: np.ndarray, config: FilterConfig) -> None:
+        """Paper eq. 11 on the pose (and bias) block; cross-covariances follow ``Phi``."""
+        c = self.core
+        if config.gyro_bias:
+            u_c, Phi, _ = bias_transition(tau, u, self.bias)
+            Q = np.zeros((9, 9))
+            Q[:6, :6] = process_noise(tau, config.velocity_cov)
+            Q[6:, 6:] = config.gyro_bias_walk**2 * tau * np.eye(3)
+        else:
+            u_c = u
+            Phi = prediction_jacobian(tau, u)
+            Q = process_noise(tau, config.velocity_cov)
+        self.U = predict_mean(self.U, tau, u_c)
+        P = self.P
+        Pcc = Phi @ P[:c, :c] @ Phi.T + Q
+        P[:c, :c] = 0.5 * (Pcc + Pcc.T)
+        if P.shape[0] > c:
+            P[:c, c:] = Phi @ P[:c, c:]
+            P[c:, :c] = P[:c, c:].T
+
+    # --- update -------------------------------------------------------------------------
+    def update(self, model: StereoModel, tracks: np.ndarray, z: np.ndarray) -> tuple[int, int]:
+        """One stacked update with the observations of active landmarks (paper eq. 8 + 14
+        jointly). ``tracks`` must all be active. Returns ``(n_accepted, n_rejected)``."""
+        if tracks.size == 0:
+            return 0, 0
+        slots = self.slot[tracks]
+        m = self.lm_mean[slots]
+        q = model.camera_points(self.U, m)
+        ok = model.valid_predictions(q)
+        if not np.all(ok):
+            slots, m, q, z = slots[ok], m[ok], q[ok], z[ok]
+        k = slots.size
+        if k == 0:
+            return 0, int(tracks.size)
+        P = self.P
+        N = P.shape[0]
+        Hp, Hm = model.jacobians(self.U, m, q, reduced=True)  # (k,3,6), (k,3,3)
+        rows = self.landmark_rows(slots)  # (k,3)
+        # P H^T (N, 3k), using the sparsity of H: 6 pose columns + 3 landmark columns per row.
+        PHt = P[:, :6] @ Hp.reshape(3 * k, 6).T
+        Pc = P[:, rows.ravel()].reshape(N, k, 3)
+        PHt += np.einsum("nkj,kij->nki", Pc, Hm).reshape(N, 3 * k)
+        # S = H P H^T + I (x) R3.
+        S = Hp.reshape(3 * k, 6) @ PHt[:6]
+        S += np.einsum("kij,kjm->kim", Hm, PHt[rows.ravel()].reshape(k, 3, 3 * k)).reshape(
+            3 * k, 3 * k
+        )
+        S3_diag = S.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :] + model.R3
+        acc = model.gate_mask(z, q, S3_diag)
+        a = int(acc.sum())
+        if a == 0:
+            return 0, int(tracks.size)
+        r = model.reduced_innovation(z[acc], q[acc]).ravel()
+        if a < k:
+            sel = (3 * np.nonzero(acc)[0][:, None] + _AR3).ravel()
+            S = S[np.ix_(sel, sel)]
+            PHt = PHt[:, sel]
+        S = 0.5 * (S + S.T)
+        S.reshape(a, 3, a, 3)[np.arange(a), :, np.arange(a), :] += model.R3
+        try:
+            L = cholesky(S, lower=True, check_finite=False)
+        except np.linalg.LinAlgError as exc:
+            raise EstimationError(
+                f"joint EKF: innovation covariance of {a} observations is not positive definite"
+            ) from exc
+        Y = solve_triangular(L, PHt.T, lower=True, check_finite=False)  # (3a, N)
+        e = solve_triangular(L, r, lower=True, check_finite=False)
+        dx = Y.T @ e  # = K r
+        P -= Y.T @ Y  # = P - K S K^T
+        self.P = 0.5 * (P + P.T)
+        self.U = se3_exp(dx[:6]) @ self.U  # paper eq. 14: mu <- exp((K r)^) mu
+        if self.core == 9:
+            self.bias = self.bias + dx[6:9]
+        self.lm_mean = self.lm_mean + dx[self.core :].reshape(-1, 3)
+        return a, int(tracks.size) - a
+
+    # --- landmark initialisation and marginalisation ------------------------------------
+    def initialise(
+        self, model: StereoModel, tracks: np.ndarray, z: np.ndarray, ends_now: np.ndarray
+    ) -> None:
+        """Add landmarks of ``tracks`` (new, valid observations ``z``) with cross-covariances.
+
+        Tracks with ``ends_now`` go straight to the map (they will never be observed again).
+        """
+        if tracks.size == 0:
+            return
+        m, J_d, J_z = model.initialise(self.U, z)
+        Pdd = self.P[:6, :6]
+        self.ever[tracks] = True
+        if np.any(ends_now):
+            tr = tracks[ends_now]
+            self.map_mean[tr] = m[ends_now]
+            self.map_cov[tr] = model.initial_landmark_cov(J_d[ends_now], J_z[ends_now], Pdd)
+        add = ~ends_now
+        n = int(add.sum())
+        if n == 0:
+            return
+        m, J_d, J_z = m[add], J_d[add], J_z[add]
+        Jd = J_d.reshape(3 * n, 6)
+        B = Jd @ self.P[:6, :]  # cross-covariance with the whole state (3n, N)
+        C = B[:, :6] @ Jd.T
+        Cz = J_z @ model.V @ np.swapaxes(J_z, 1, 2)
+        C.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] += Cz
+        N = self.P.shape[0]
+        P = np.empty((N + 3 * n, N + 3 * n))
+        P[:N, :N] = self.P
+        P[N:, :N] = B
+        P[:N, N:] = B.T
+        P[N:, N:] = 0.5 * (C + C.T)
+        self.P = P
+        first = self.n_landmarks
+        self.lm_mean = np.concatenate([self.lm_mean, m])
+        self.lm_track = np.concatenate([self.lm_track, tracks[add]])
+        self.slot[tracks[add]] = first + np.arange(n)
+
+    def landmark_covs(self, slots: np.ndarray) -> np.ndarray:
+        rows = self.landmark_rows(slots)
+        return self.P[rows[:, :, None], rows[:, None, :]]
+
+    def marginalise(self, tracks: np.ndarray) -> None:
+        """Move the active landmarks of ``tracks`` to the map and delete them from the state."""
+        tracks = tracks[self.slot[tracks] >= 0]
+        if tracks.size == 0:
+            return
+        slots = self.slot[tracks]
+        self.map_mean[tracks] = self.lm_mean[slots]
+        self.map_cov[tracks] = self.landmark_covs(slots)
+        keep_lm = np.ones(self.n_landmarks, dtype=bool)
+        keep_lm[slots] = False
+        keep = np.concatenate([np.ones(self.core, dtype=bool), np.repeat(keep_lm, 3)])
+        ix = np.nonzero(keep)[0]
+        self.P = self.P[np.ix_(ix, ix)]
+        self.slot[tracks] = -1
+        self.lm_mean = self.lm_mean[keep_lm]
+        self.lm_track = self.lm_track[keep_lm]
+        self.slot[self.lm_track] = np.arange(self.n_landmarks)
+
+    def flush(self) -> None:
+        """Move every active landmark to the map (end of the run)."""
+        if self.n_landmarks:
+            slots = np.arange(self.n_landmarks)
+            self.map_mean[self.lm_track] = self.lm_mean
+            self.map_cov[self.lm_track] = self.landmark_covs(slots)
+
+
+def run_joint(
+    seq: Sequence, config: FilterConfig = FilterConfig(), progress: Progress = None
+) -> Estimate:
+    """Joint EKF SLAM with the full pose-landmark covariance (see the module docstring)."""
+    seq, info = prepare_sequence(seq, config)
+    rec = StepRecorder(seq.n_frames)
+    model = StereoModel.from_config(seq.calibration, config)
+    tau, u = interval_twists(seq, config)
+    ending = tracks_ending(seq)
+    last = seq.track_last_frame()
+    st = JointState(config, seq.n_tracks)
+    max_dim = st.P.shape[0]
+    with blas_limits(config):
+        for t in range(seq.n_frames):
+            tracks, z = seq.frame(t)
+            with rec.step(t):
+                if t > 0:
+                    st.predict(tau[t - 1], u[t - 1], config)
+                valid = model.valid_observations(z)
+                active = st.slot[tracks] >= 0
+                upd = valid & active
+                n_acc, n_rej = st.update(model, tracks[upd], z[upd])
+                new = valid & ~active & ~st.ever[tracks]
+                st.initialise(model, tracks[new], z[new], last[tracks[new]] <= t)
+                max_dim = max(max_dim, st.P.shape[0])
+                if not config.keep_landmarks:
+                    st.marginalise(ending[t])
+                rec.n_updates[t] = n_acc
+                rec.n_initialised[t] = int(new.sum())
+                rec.n_rejected[t] = tracks.size - n_acc - int(new.sum())
+                rec.record_pose(t, st.U, st.P[:6, :6])
+            report_progress(progress, t, seq.n_frames)
+    st.flush()
+    info["max_state_dim"] = int(max_dim)
+    if config.gyro_bias:
+        info["gyro_bias"] = st.bias.tolist()
+    return build_estimate("ekf-joint", seq, rec, st.map_mean, st.map_cov, config, info)

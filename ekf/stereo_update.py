@@ -1,0 +1,260 @@
+"""The stereo measurement model shared by every EKF variant (paper eq. 1-3, 7-9, 13-16).
+
+All functions are batched over observations (leading axis n) so a frame's update needs no
+Python loop over observations.
+
+* Predicted pixels (eq. 1, 9, 16): ``z = M pi(q)``, ``q = cam_T_imu U m`` (homogeneous m).
+* Landmark Jacobian (eq. 7-8): ``dz/dm = M dpi/dq(q) cam_T_imu U P^T``, ``P = [I3 0]``.
+* Pose Jacobian (eq. 13-15) for the left perturbation ``U = exp(d^) mu``:
+  ``dz/dd = M dpi/dq(q) cam_T_imu (U m)^odot``.
+* Landmark initialisation by stereo triangulation: ``m = U^-1 imu_T_cam p_cam(z)``, with
+  ``dm/dd = -R_U^T [I3, -s^]`` (``s = imu_T_cam p_cam``) and ``dm/dz = R_U^T R_ic dp_cam/dz``.
+
+**Lossless 3-row reduction.** Rows 2 and 4 of ``M`` are identical (vL and vR carry the same
+information), so ``z = A y(x) + v`` with ``y = [uL, v, uR]`` and ``A`` (4x3) repeating the v row.
+``y_hat = C z``, ``C = R3 A^T V^-1``, ``R3 = (A^T V^-1 A)^-1``, is a sufficient statistic: updating
+with ``(C z, C H, R3)`` gives exactly the same posterior as ``(z, H, V)`` with 3 rows instead of 4
+(for ``V = s^2 I4``: ``[uL, (vL+vR)/2, uR]`` with ``R3 = s^2 diag(1, 1/2, 1)``). The 4x4
+innovation covariance of each observation, used for gating, is recovered exactly as
+``S4 = A S3 A^T + (V - A R3 A^T)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from ekf.camera import dpi_dq, triangulate_with_jacobian
+from ekf.geometry import hat, se3_inv
+from ekf.sequence import Calibration
+
+#: Maps the reduced rows [uL, v, uR] to the four stereo rows [uL, vL, uR, vR].
+REDUCE_A = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, 1, 0]])
+
+#: Predicted camera depth below which a point counts as behind the camera (m).
+MIN_DEPTH = 1e-3
+
+
+def chi2_gate(probability: float | None, dof: int = 4) -> float:
+    """Gate threshold ``chi2.ppf(probability, dof)`` (inf when gating is off)."""
+    return float("inf") if probability is None else float(chi2.ppf(probability, dof))
+
+
+@dataclass(frozen=True)
+class StereoModel:
+    """Calibration, noise and rejection settings of the stereo measurement, precomputed.
+
+    ``M`` (4x4) paper eq. 2; ``cam_T_imu``; ``V`` (4x4) pixel covariance; ``C`` (3x4) and ``R3``
+    (3x3) the lossless reduction (module docstring); ``S4_extra = V - A R3 A^T``;
+    ``gate`` the chi-square threshold on the 4-dof NIS; ``min_disparity`` (px) and ``max_depth``
+    (m, None: no limit) the rejection limits.
+    """
+
+    K: np.ndarray
+    baseline: float
+    M: np.ndarray
+    cam_T_imu: np.ndarray
+    imu_T_cam: np.ndarray
+    V: np.ndarray
+    C: np.ndarray
+    R3: np.ndarray
+    M3: np.ndarray
+    S4_extra: np.ndarray
+    gate: float
+    min_disparity: float
+    max_depth: float | None
+
+    @classmethod
+    def create(
+        cls,
+        calibration: Calibration,
+        pixel_cov: np.ndarray,
+        gate_probability: float | None = 0.99,
+        min_disparity: float = 1.0,
+        max_depth: float | None = None,
+    ) -> "StereoModel":
+        V = np.asarray(pixel_cov, dtype=float)
+        Vinv = np.linalg.inv(V)
+        R3 = np.linalg.inv(REDUCE_A.T @ Vinv @ REDUCE_A)
+        R3 = 0.5 * (R3 + R3.T)
+        C = R3 @ REDUCE_A.T @ Vinv
+        M = calibration.M
+        extra = V - REDUCE_A @ R3 @ REDUCE_A.T
+        return cls(
+            K=np.asarray(calibration.K, dtype=float),
+            baseline=float(calibration.baseline),
+            M=M,
+            cam_T_imu=np.asarray(calibration.cam_T_imu, dtype=float),
+            imu_T_cam=se3_inv(calibration.cam_T_imu),
+            V=V,
+            C=C,
+            R3=R3,
+            M3=C @ M,
+            S4_extra=0.5 * (extra + extra.T),
+            gate=chi2_gate(gate_probability, 4),
+            min_disparity=float(min_disparity),
+            max_depth=None if max_depth is None else float(max_depth),
+        )
+
+    @classmethod
+    def from_config(cls, calibration: Calibration, config) -> "StereoModel":
+        """From a :class:`ekf.config.FilterConfig`."""
+        return cls.create(
+            calibration,
+            config.pixel_cov,
+            config.gate_probability,
+            config.min_disparity,
+            config.max_depth,
+        )
+
+    # --- observation checks -------------------------------------------------------------
+    def valid_observations(self, z: np.ndarray) -> np.ndarray:
+        """Boolean (n,): finite pixels, disparity > max(min_disparity, 0), depth <= max_depth."""
+        z = np.asarray(z, dtype=float)
+        disparity = z[:, 0] - z[:, 2]
+        ok = np.all(np.isfinite(z), axis=1) & (disparity > 0) & (disparity >= self.min_disparity)
+        if self.max_depth is not None:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                depth = self.K[0, 0] * self.baseline / disparity
+            ok &= depth <= self.max_depth
+        return ok
+
+    def valid_predictions(self, q: np.ndarray) -> np.ndarray:
+        """Boolean (n,): predicted camera point in front of the camera and within max_depth."""
+        ok = q[:, 2] > MIN_DEPTH
+        if self.max_depth is not None:
+            ok &= q[:, 2] <= self.max_depth
+        return ok
+
+    # --- prediction and Jacobians -------------------------------------------------------
+    def camera_points(self, U: np.ndarray, m: np.ndarray) -> np.ndarray:
+        """``q = cam_T_imu U [m; 1]`` (n, 4) for world landmarks ``m`` (n, 3)."""
+        CU = self.cam_T_imu @ U
+        q = np.empty((m.shape[0], 4))
+        q[:, :3] = m @ CU[:3, :3].T + CU[:3, 3]
+        q[:, 3] = 1.0
+        return q
+
+    def predicted_pixels(self, q: np.ndarray) -> np.ndarray:
+        """Paper eq. 9 / 16: ``z_hat = M pi(q)`` (n, 4)."""
+        return (q / q[:, 2:3]) @ self.M.T
+
+    def landmark_jacobian(self, U: np.ndarray, q: np.ndarray, reduced: bool = False) -> np.ndarray:
+        """Paper eq. 7-8: ``M dpi/dq(q) cam_T_imu U P^T`` (n, 4, 3), or (n, 3, 3) reduced."""
+        Mx = self.M3 if reduced else self.M
+        CU = self.cam_T_imu @ U
+        return (Mx @ dpi_dq(q))[:, :, :3] @ CU[:3, :3]
+
+    def pose_jacobian(self, U: np.ndarray, m: np.ndarray, q: np.ndarray, reduced: bool = False):
+        """Paper eq. 13-15: ``M dpi/dq(q) cam_T_imu (U m)^odot`` (n, 4, 6), or (n, 3, 6) reduced.
+
+        ``(U m)^odot = [[I3, -s^], [0, 0]]`` with ``s = U m``, so
+        ``cam_T_imu (U m)^odot = [[R_c, -R_c s^], [0, 0]]``.
+        """
+        Mx = self.M3 if reduced else self.M
+        A = (Mx @ dpi_dq(q))[:, :, :3]  # (n, r, 3): only the first 3 rows of cam_T_imu odot are nonzero
+        s = m @ U[:3, :3].T + U[:3, 3]
+        Rc = self.cam_T_imu[:3, :3]
+        H = np.empty((q.shape[0], Mx.shape[0], 6))
+        H[:, :, :3] = A @ Rc
+        H[:, :, 3:] = -(A @ Rc) @ hat(s)
+        return H
+
+    def jacobians(self, U: np.ndarray, m: np.ndarray, q: np.ndarray, reduced: bool = True):
+        """Both Jacobians at once: ``(H_pose (n, r, 6), H_landmark (n, r, 3))``."""
+        Mx = self.M3 if reduced else self.M
+        A = (Mx @ dpi_dq(q))[:, :, :3]
+        CU = self.cam_T_imu @ U
+        s = m @ U[:3, :3].T + U[:3, 3]
+        ARc = A @ self.cam_T_imu[:3, :3]
+        Hp = np.empty((q.shape[0], Mx.shape[0], 6))
+        Hp[:, :, :3] = ARc
+        Hp[:, :, 3:] = -ARc @ hat(s)
+        return Hp, A @ CU[:3, :3]
+
+    def reduced_innovation(self, z: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """``C (z - M pi(q))`` (n, 3): the innovation in the reduced rows."""
+        return z @ self.C.T - (q / q[:, 2:3]) @ self.M3.T
+
+    # --- gating -------------------------------------------------------------------------
+    def full_innovation_cov(self, S3: np.ndarray) -> np.ndarray:
+        """Per-observation 4x4 innovation covariance from the reduced 3x3 one (exact)."""
+        return REDUCE_A @ S3 @ REDUCE_A.T + self.S4_extra
+
+    def nis(self, innovation4: np.ndarray, S4: np.ndarray) -> np.ndarray:
+        """Normalised innovation squared ``r^T S^-1 r`` per observation (n,)."""
+        x = np.linalg.solve(S4, innovation4[..., None])[..., 0]
+        return np.einsum("ni,ni->n", innovation4, x)
+
+    def gate_mask(self, z: np.ndarray, q: np.ndarray, S3: np.ndarray) -> np.ndarray:
+        """Chi-square gate of each stereo observation against its own 4x4 S (True: accept)."""
+        if not np.isfinite(self.gate):
+            return np.ones(z.shape[0], dtype=bool)
+        r4 = z - self.predicted_pixels(q)
+        return self.nis(r4, self.full_innovation_cov(S3)) <= self.gate
+
+    # --- initialisation -----------------------------------------------------------------
+    def initialise(self, U: np.ndarray, z: np.ndarray):
+        """Stereo triangulation into the world: ``(m (n,3), J_d (n,3,6), J_z (n,3,4))``.
+
+        ``m = U^-1 imu_T_cam p_cam(z)``; ``J_d = dm/dd`` for ``U = exp(d^) mu``;
+        ``J_z = dm/dz``. The caller checks :meth:`valid_observations` first.
+        """
+        p_cam, Jtri = triangulate_with_jacobian(z, self.K, self.baseline)
+        Ric, tic = self.imu_T_cam[:3, :3], self.imu_T_cam[:3, 3]
+        s = p_cam @ Ric.T + tic
+        Rt = U[:3, :3].T
+        m = (s - U[:3, 3]) @ Rt.T
+        J_d = np.empty((z.shape[0], 3, 6))
+        J_d[:, :, :3] = -Rt
+        J_d[:, :, 3:] = Rt @ hat(s)
+        J_z = (Rt @ Ric) @ Jtri
+        return m, J_d, J_z
+
+    def initial_landmark_cov(
+        self, J_d: np.ndarray, J_z: np.ndarray, Sigma_pose: np.ndarray | None = None
+    ) -> np.ndarray:
+        """``J_z V J_z^T (+ J_d Sigma_pose J_d^T)`` (n, 3, 3): first-order covariance."""
+        cov = J_z @ self.V @ np.swapaxes(J_z, 1, 2)
+        if Sigma_pose is not None:
+            cov = cov + J_d @ Sigma_pose @ np.swapaxes(J_d, 1, 2)
+        return 0.5 * (cov + np.swapaxes(cov, 1, 2))
+
+
+def batched_landmark_update(
+    model: StereoModel,
+    U: np.ndarray,
+    m: np.ndarray,
+    P: np.ndarray,
+    z: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Independent 3x3 landmark EKF updates (paper eq. 8), all landmarks of a frame at once.
+
+    ``m`` (n, 3), ``P`` (n, 3, 3), ``z`` (n, 4) with the pose ``U`` taken as exact. Applies the
+    prediction checks (cheirality, depth) and the chi-square gate; rejected rows keep their
+    prior. Joseph form keeps each ``P`` symmetric PD. Returns ``(m, P, accepted (n,))``.
+    """
+    q = model.camera_points(U, m)
+    ok = model.valid_predictions(q)
+    m, P = m.copy(), P.copy()
+    if not np.any(ok):
+        return m, P, ok
+    idx = np.nonzero(ok)[0]
+    q, mi, Pi, zi = q[idx], m[idx], P[idx], z[idx]
+    G = model.landmark_jacobian(U, q, reduced=True)  # (k, 3, 3)
+    PGt = Pi @ np.swapaxes(G, 1, 2)
+    S3 = G @ PGt + model.R3
+    acc = model.gate_mask(zi, q, S3)
+    K = np.swapaxes(np.linalg.solve(S3, np.swapaxes(PGt, 1, 2)), 1, 2)  # P G^T S^-1
+    r = model.reduced_innovation(zi, q)
+    IKG = np.eye(3) - K @ G
+    Pn = IKG @ Pi @ np.swapaxes(IKG, 1, 2) + K @ model.R3 @ np.swapaxes(K, 1, 2)
+    Pn = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
+    sel = idx[acc]
+    m[sel] = mi[acc] + (K[acc] @ r[acc][:, :, None])[:, :, 0]
+    P[sel] = Pn[acc]
+    accepted = np.zeros(ok.shape, dtype=bool)
+    accepted[sel] = True
+    return m, P, accepted
