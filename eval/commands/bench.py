@@ -1,11 +1,67 @@
-"""`vislam bench` (not yet implemented)."""
+"""`vislam bench`: every estimator on every sequence; results.json, summary.md, TUM
+trajectories and figures in one folder (default ``results/<YYYYmmdd-HHMMSS>/``, with
+``results/latest`` pointing at it).
 
-from ekf.errors import InputError
+Without PATH the simulator's default drive (seed 0, ``--frames`` steps) is benchmarked, with
+its exact ground truth and true landmarks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
 
 
-def add_arguments(parser):
-    pass
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from eval.benchmark import DEFAULT_BENCH_FRAMES
+    from eval.registry import DEFAULT_BENCH, ESTIMATOR_NAMES
+    from eval.runjob import add_filter_arguments
+
+    parser.add_argument("paths", nargs="*", metavar="PATH", help=".npz files or folders of them")
+    parser.add_argument("--out", "-o", metavar="DIR",
+                        help="output folder (default results/<YYYYmmdd-HHMMSS>, linked as results/latest)")
+    parser.add_argument("--estimators", "-e", metavar="LIST",
+                        help=f"comma-separated, or 'all' (default: {','.join(DEFAULT_BENCH)}; "
+                             f"all: {','.join(ESTIMATOR_NAMES)})")
+    parser.add_argument("--jobs", "-j", type=int, default=None, metavar="N",
+                        help="worker processes (default: number of CPUs)")
+    parser.add_argument("--frames", type=int, default=None, metavar="N",
+                        help=f"length of the default simulated drive (default {DEFAULT_BENCH_FRAMES})")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the default simulated drive")
+    parser.add_argument("--quiet", "-q", action="store_true", help="no progress bars, no table")
+    add_filter_arguments(parser)
 
 
-def run(args):
-    raise InputError("vislam bench is not implemented yet")
+def run(args: argparse.Namespace) -> int:
+    from ekf.errors import InputError
+    from eval.benchmark import collect_sequences, default_out_dir, run_benchmark
+    from eval.registry import DEFAULT_BENCH, parse_estimator_list
+    from eval.runjob import environment_settings, filter_config_from_args
+
+    estimators = parse_estimator_list(args.estimators, DEFAULT_BENCH)
+    config = filter_config_from_args(args)
+    if args.frames is not None and args.frames < 2:
+        raise InputError(f"--frames must be >= 2, got {args.frames}")
+    if args.frames is not None and args.paths:
+        raise InputError("--frames sets the length of the default simulation; give no PATH with it")
+    jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
+    if jobs < 1:
+        raise InputError(f"--jobs must be >= 1, got {jobs}")
+    sequences = collect_sequences(args.paths, frames=args.frames, seed=args.seed)
+    jobs = min(jobs, len(sequences) * len(estimators))
+
+    if args.out:
+        out, latest = Path(args.out), None
+    else:
+        out = default_out_dir(Path("results"))
+        latest = Path("results") / "latest"
+    result = run_benchmark(
+        sequences, estimators, config, out, jobs=jobs, show_progress=not args.quiet,
+        settings=environment_settings(), latest_link=latest,
+    )
+    if not args.quiet:
+        print(result.summary)
+    print(f"wrote {result.out_dir} in {result.wall_s:.1f} s", file=sys.stderr)
+    return 0

@@ -1,0 +1,578 @@
+"""The benchmark (``vislam bench``) and the Monte Carlo consistency study (``vislam nees``).
+
+Jobs are (sequence, estimator) pairs run in worker processes (``--jobs``). The batch smoother
+starts from an EKF's estimate (:data:`eval.registry.SMOOTHER_INITIAL_FROM`): its job is
+submitted when that EKF's job on the same sequence has finished, so the EKF never runs twice.
+Scores and figures are computed in the main process; every output is built in a temporary
+folder and renamed into place at the end (:mod:`eval.atomic`).
+
+``results.json`` (schema 1)::
+
+    {"schema": 1, "rpe_definition": ..., "reference": ..., "sequences": [
+        {"name", "path", "frames", "has_ground_truth", "has_landmark_truth",
+         "estimators": [
+            {"name", "error", "runtime_s", "frames_per_s", "landmarks",
+             "ate_m", "ate_aligned_m", "rpe_trans_pct", "rpe_rot_deg_per_100m",
+             "nees_pose_mean", "map_rmse_m", "nees_landmark_mean",
+             "vs_smoother": {"ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean",
+                             "inside_95_fraction"}}, ...]}, ...]}
+
+Every key is always present; a figure that cannot be computed is null. ``map_rmse_m`` and
+``nees_landmark_mean`` compare with true landmarks (simulations only); ``vs_smoother`` compares
+with the smoother's estimate on the same sequence (null for the smoothers themselves).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ekf.config import FilterConfig
+from ekf.errors import EstimationError, InputError
+from ekf.estimate import Estimate
+from ekf.sequence import Observations, Sequence
+from eval.registry import SMOOTHER_INITIAL_FROM, SMOOTHERS, uses_initial
+from eval.runjob import RPE_DEFINITION, JobResult, Progress, run_estimator, trajectory_scores
+
+log = logging.getLogger(__name__)
+
+SCHEMA = 1
+#: Frames of the default simulated drive: sized so that `vislam bench` with every default
+#: estimator finishes within 2 minutes on a 2-core machine.
+DEFAULT_BENCH_FRAMES = 300
+#: Frames of each Monte Carlo drive of `vislam nees`.
+DEFAULT_NEES_FRAMES = 200
+
+ESTIMATOR_KEYS = (
+    "name", "error", "runtime_s", "frames_per_s", "landmarks", "ate_m", "ate_aligned_m",
+    "rpe_trans_pct", "rpe_rot_deg_per_100m", "nees_pose_mean", "map_rmse_m",
+    "nees_landmark_mean", "vs_smoother",
+)
+VS_SMOOTHER_KEYS = ("ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean", "inside_95_fraction")
+SEQUENCE_KEYS = ("name", "path", "frames", "has_ground_truth", "has_landmark_truth", "estimators")
+
+
+@dataclass(frozen=True)
+class KnownTruth:
+    """Ground-truth poses of a drive: ``frames`` (n,) step indices, ``poses`` (n, 4, 4)."""
+
+    frames: np.ndarray
+    poses: np.ndarray
+    path: str | None = None
+
+
+@dataclass
+class BenchSequence:
+    """A drive to benchmark: its measurements and whatever truth is known."""
+
+    name: str
+    path: str | None
+    sequence: Sequence
+    gt: object | None = None  # .frames, .poses (eval.groundtruth.GroundTruth or KnownTruth)
+    landmark_truth: np.ndarray | None = None  # (n_tracks, 3) per source track
+    origin: dict | None = None  # how it was made (simulation settings)
+
+
+@dataclass
+class JobFailure:
+    """An estimator that failed on a sequence (EstimationError, or its module is missing)."""
+
+    sequence: str
+    estimator: str
+    error: str
+    wall_s: float = float("nan")
+
+
+# --- sequences -------------------------------------------------------------------------------
+
+
+def simulated_sequence(seed: int = 0, frames: int | None = None) -> BenchSequence:
+    """The simulator's default drive (``seed``, ``frames`` steps) with its exact truth."""
+    from eval.simulate import DEFAULT_SIM, simulate
+
+    config = dataclasses.replace(
+        DEFAULT_SIM, seed=int(seed), n_frames=int(frames or DEFAULT_BENCH_FRAMES),
+        name=f"sim-seed{seed}",
+    )
+    result = simulate(config)
+    T = result.sequence.n_frames
+    return BenchSequence(
+        name=config.name,
+        path=None,
+        sequence=result.sequence,
+        gt=KnownTruth(np.arange(T), result.poses),
+        landmark_truth=result.landmarks,
+        origin={"simulation": dataclasses.asdict(config)},
+    )
+
+
+def expand_paths(paths: list[str]) -> list[Path]:
+    """.npz files, and the .npz files directly inside folders (simulator landmark files left out)."""
+    files: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found = sorted(f for f in p.glob("*.npz") if not f.name.endswith("_landmarks.npz"))
+            if not found:
+                raise InputError(f"{p}: folder holds no .npz data file")
+            files.extend(found)
+        elif p.is_file():
+            files.append(p)
+        else:
+            raise InputError(f"{p}: no such file or folder")
+    return files
+
+
+def load_bench_sequence(path: Path) -> BenchSequence:
+    """A data file, its ground truth (if found) and, for simulated files, the true landmarks."""
+    from eval.groundtruth import find_ground_truth
+    from eval.loader import load_sequence
+
+    seq = load_sequence(path, clean=False)
+    gt = find_ground_truth(path)
+    truth = None
+    lm_file = path.with_name(f"{path.stem}_landmarks.npz")
+    if lm_file.is_file():
+        with np.load(lm_file) as d:
+            if "landmarks" in d and d["landmarks"].shape == (seq.n_tracks, 3):
+                truth = np.asarray(d["landmarks"], dtype=float)
+    return BenchSequence(path.stem, str(path.resolve()), seq, gt, truth)
+
+
+def collect_sequences(paths: list[str], frames: int | None = None, seed: int = 0) -> list[BenchSequence]:
+    """The sequences of ``paths`` (files or folders), or the default simulation when empty."""
+    if not paths:
+        return [simulated_sequence(seed, frames)]
+    seqs = [load_bench_sequence(p) for p in expand_paths(paths)]
+    seen: dict[str, int] = {}
+    for s in seqs:  # unique names: they name output folders
+        n = seen.get(s.name, 0)
+        seen[s.name] = n + 1
+        if n:
+            s.name = f"{s.name}-{n}"
+    return seqs
+
+
+# --- jobs ------------------------------------------------------------------------------------
+
+
+def _job(seq: Sequence, key: str, name: str, config: FilterConfig, initial: Estimate | None):
+    """Worker: one estimator on one sequence (module-level so worker processes can pickle it)."""
+    t0 = time.perf_counter()
+    try:
+        result = run_estimator(seq, name, config, progress=None, initial=initial)
+    except (EstimationError, ImportError) as exc:
+        return JobFailure(key, name, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+    result.sequence = key
+    return result
+
+
+def _initialiser(estimators: list[str]) -> str | None:
+    return next((n for n in SMOOTHER_INITIAL_FROM if n in estimators), None)
+
+
+def run_jobs(
+    sequences: dict[str, Sequence],
+    estimators: list[str],
+    config: FilterConfig,
+    jobs: int = 1,
+    show_progress: bool = True,
+    on_result: Callable[[JobResult | JobFailure], None] | None = None,
+) -> dict[tuple[str, str], JobResult | JobFailure]:
+    """Run every estimator on every sequence; returns {(sequence key, estimator): result}.
+
+    The smoother waits for its initialiser EKF on the same sequence (if that EKF is among
+    ``estimators``) and starts from its estimate.
+    """
+    init_name = _initialiser(estimators)
+    waiting = {n for n in estimators if uses_initial(n) and init_name is not None}
+    # The initialiser first, so the smoother can start as early as possible; the smoother last.
+    order = sorted(
+        (n for n in estimators if n not in waiting),
+        key=lambda n: (n != init_name, estimators.index(n)),
+    )
+    results: dict[tuple[str, str], JobResult | JobFailure] = {}
+    total = len(sequences) * len(estimators)
+    bar = Progress("bench", total=total, enabled=show_progress)
+
+    def record(res) -> list[tuple[str, str, Estimate | None]]:
+        results[(res.sequence, res.estimator)] = res
+        bar.update(1)
+        bar.set_description(f"{res.estimator} on {res.sequence} done")
+        if on_result is not None:
+            on_result(res)
+        follow = []
+        if res.estimator == init_name:
+            initial = res.estimate if isinstance(res, JobResult) else None
+            follow = [(res.sequence, n, initial) for n in estimators if n in waiting]
+        return follow
+
+    try:
+        if jobs <= 1:
+            queue = [(k, n, None) for k in sequences for n in order]
+            while queue:
+                key, name, initial = queue.pop(0)
+                queue.extend(record(_job(sequences[key], key, name, config, initial)))
+            return results
+        with cf.ProcessPoolExecutor(max_workers=jobs) as pool:
+            pending = {
+                pool.submit(_job, sequences[k], k, n, config, None) for k in sequences for n in order
+            }
+            try:
+                while pending:
+                    done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+                    for fut in done:
+                        for key, name, initial in record(fut.result()):
+                            pending.add(pool.submit(_job, sequences[key], key, name, config, initial))
+            except BaseException:
+                for fut in pending:
+                    fut.cancel()
+                raise
+        return results
+    finally:
+        bar.close()
+
+
+# --- scores ----------------------------------------------------------------------------------
+
+
+def reference_smoother(ests: dict[str, Estimate]) -> str | None:
+    """The smoother the EKFs are compared with: the batch one if it ran, else iSAM2."""
+    return next((n for n in SMOOTHERS if n in ests), None)
+
+
+def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict) -> dict:
+    """The results.json entry of one sequence (see the module docstring)."""
+    from eval.consistency import landmark_nees, landmark_rmse, versus_smoother
+
+    ests = {n: o.estimate for n, o in outcomes.items() if isinstance(o, JobResult)}
+    ref = reference_smoother(ests)
+    rows = []
+    for name in estimators:
+        o = outcomes.get(name)
+        row = {k: None for k in ESTIMATOR_KEYS}
+        row["name"] = name
+        row["vs_smoother"] = {k: None for k in VS_SMOOTHER_KEYS}
+        if isinstance(o, JobFailure) or o is None:
+            row["error"] = o.error if o is not None else "not run"
+            rows.append(row)
+            continue
+        est = o.estimate
+        row["runtime_s"] = o.wall_s
+        row["frames_per_s"] = est.n_frames / o.wall_s if o.wall_s > 0 else None
+        row["landmarks"] = int(np.count_nonzero(est.has_landmark))
+        scores = trajectory_scores(est, bs.gt)
+        for k in ("ate_m", "ate_aligned_m", "rpe_trans_pct", "rpe_rot_deg_per_100m", "nees_pose_mean"):
+            row[k] = scores[k]
+        if bs.landmark_truth is not None and row["landmarks"]:
+            row["map_rmse_m"] = landmark_rmse(est, bs.landmark_truth)
+            nees = landmark_nees(est, bs.landmark_truth)
+            if np.any(np.isfinite(nees)):
+                row["nees_landmark_mean"] = float(np.nanmean(nees))
+        if ref is not None and name not in SMOOTHERS:
+            row["vs_smoother"] = versus_smoother(est, ests[ref])
+        rows.append(row)
+    return {
+        "name": bs.name,
+        "path": bs.path,
+        "frames": bs.sequence.n_frames,
+        "has_ground_truth": bs.gt is not None,
+        "has_landmark_truth": bs.landmark_truth is not None,
+        "reference_smoother": ref,
+        "estimators": rows,
+    }
+
+
+# --- figures ---------------------------------------------------------------------------------
+
+
+def sequence_figures(folder: Path, bs: BenchSequence, ests: dict[str, Estimate]) -> list[Path]:
+    """The PNG figures of one sequence into ``folder``; returns the paths written."""
+    from eval import plots
+    from eval.consistency import pose_nees
+
+    written = []
+    if not ests:
+        return written
+    gt = bs.gt
+    gt_pos = np.asarray(gt.poses)[:, :3, 3] if gt is not None else None
+    title = bs.name
+    written.append(plots.plot_trajectories(folder / "trajectories.png", ests, gt_pos,
+                                           f"{title}: trajectories, top view"))
+    map_from = next(
+        (n for n in ("smoother", "smoother-isam2", "ekf-invariant", "ekf-joint", "ekf-decoupled",
+                     "mapping") if n in ests and np.any(ests[n].has_landmark)),
+        None,
+    )
+    if map_from is not None:
+        written.append(plots.plot_map(folder / "map.png", ests[map_from], gt_pos, bs.landmark_truth,
+                                      f"{title}: landmark map ({map_from})"))
+    if gt is not None:
+        written.append(plots.plot_error_over_distance(
+            folder / "error_over_distance.png", ests, gt.frames, np.asarray(gt.poses),
+            f"{title}: translation error over distance (no alignment)"))
+    ref = reference_smoother(ests)
+    ekfs = {n: e for n, e in ests.items() if n.startswith("ekf-")}
+    if ref is not None and ekfs:
+        written.append(plots.plot_vs_smoother(
+            folder / "vs_smoother.png", ekfs, ests[ref],
+            f"{title}: EKF position minus {ref}, with the EKF's ±3σ"))
+    # Pose NEES over time: against ground truth where known, else against the smoother.
+    if gt is not None:
+        against, frames, poses, who = "ground truth", gt.frames, np.asarray(gt.poses), ests
+    elif ref is not None:
+        against, frames, poses = ref, np.arange(ests[ref].n_frames), ests[ref].poses
+        who = {n: e for n, e in ests.items() if n not in SMOOTHERS}
+    else:
+        who = {}
+    series = {n: pose_nees(e, frames, poses) for n, e in who.items()}
+    series = {n: v for n, v in series.items() if np.any(np.isfinite(v))}
+    if series:
+        t = next(iter(ests.values())).timestamps
+        written.append(plots.plot_nees(
+            folder / "nees.png", series, dof=6, times=t - t[0],
+            title=f"{title}: pose NEES against {against}",
+            ylabel=f"pose NEES vs {against} (6 dof)"))
+    return written
+
+
+# --- summary ---------------------------------------------------------------------------------
+
+
+def _fmt(x, digits=2) -> str:
+    if x is None:
+        return "–"
+    if isinstance(x, float):
+        return f"{x:.{digits}f}"
+    return str(x)
+
+
+def summary_markdown(results: dict) -> str:
+    """The results as Markdown tables, one per sequence."""
+    lines = ["# vislam benchmark", ""]
+    lines.append(f"RPE: {results['rpe_definition']}.")
+    lines.append("vs smoother: the estimator against the smoother's estimate on the same data "
+                 "(ATE after SE(3) alignment; map RMSE over tracks both estimated; pose NEES of "
+                 "the difference under the estimator's own covariance, and the share of steps "
+                 "inside chi2.ppf(0.95, 6)).")
+    lines.append("")
+    head = ("| estimator | time (s) | frames/s | ATE (m) | ATE al. (m) | t_rel (%) | r_rel (°/100m) "
+            "| NEES | map RMSE (m) | lm NEES | vs sm. ATE al. (m) | vs sm. map (m) | vs sm. NEES "
+            "| vs sm. in 95% |")
+    sep = "|" + "|".join(["---"] * 14) + "|"
+    for s in results["sequences"]:
+        gt = "ground truth" if s["has_ground_truth"] else "no ground truth"
+        lines.append(f"## {s['name']} ({s['frames']} frames, {gt})")
+        lines.append("")
+        lines.append(head)
+        lines.append(sep)
+        for r in s["estimators"]:
+            if r["error"]:
+                lines.append(f"| {r['name']} | failed: {r['error']} |" + " |" * 12)
+                continue
+            v = r["vs_smoother"]
+            cells = [
+                r["name"], _fmt(r["runtime_s"]), _fmt(r["frames_per_s"], 1), _fmt(r["ate_m"]),
+                _fmt(r["ate_aligned_m"]), _fmt(r["rpe_trans_pct"]), _fmt(r["rpe_rot_deg_per_100m"]),
+                _fmt(r["nees_pose_mean"]), _fmt(r["map_rmse_m"]), _fmt(r["nees_landmark_mean"]),
+                _fmt(v["ate_aligned_m"]), _fmt(v["map_rmse_m"]), _fmt(v["nees_pose_mean"]),
+                _fmt(v["inside_95_fraction"]),
+            ]
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+# --- the benchmark ---------------------------------------------------------------------------
+
+
+@dataclass
+class BenchOutput:
+    out_dir: Path
+    results: dict
+    summary: str
+    wall_s: float
+
+
+def default_out_dir(root: Path = Path("results")) -> Path:
+    return root / time.strftime("%Y%m%d-%H%M%S")
+
+
+def run_benchmark(
+    sequences: list[BenchSequence],
+    estimators: list[str],
+    config: FilterConfig,
+    out_dir: Path,
+    jobs: int = 1,
+    show_progress: bool = True,
+    settings: dict | None = None,
+    latest_link: Path | None = None,
+) -> BenchOutput:
+    """Run, score, plot and write everything into ``out_dir`` (atomically)."""
+    from eval.atomic import atomic_dir, atomic_symlink, write_json, write_text
+    from eval.export import write_tum
+
+    t0 = time.perf_counter()
+    by_key = {bs.name: bs.sequence for bs in sequences}
+    outcomes = run_jobs(by_key, estimators, config, jobs, show_progress)
+    results = {
+        "schema": SCHEMA,
+        "rpe_definition": RPE_DEFINITION,
+        "reference": "vs_smoother compares with the batch smoother ('smoother'), or with "
+                     "'smoother-isam2' when only that ran",
+        "estimators": list(estimators),
+        "sequences": [],
+    }
+    with atomic_dir(out_dir) as tmp:
+        for bs in sequences:
+            outs = {n: outcomes[(bs.name, n)] for n in estimators if (bs.name, n) in outcomes}
+            results["sequences"].append(score_sequence(bs, estimators, outs))
+            ests = {n: o.estimate for n, o in outs.items() if isinstance(o, JobResult)}
+            folder = tmp / bs.name
+            for name, est in ests.items():
+                write_tum(folder / f"{name}.tum", est.timestamps, est.poses)
+            sequence_figures(folder, bs, ests)
+        results["wall_s"] = time.perf_counter() - t0
+        summary = summary_markdown(results)
+        write_json(tmp / "results.json", results)
+        write_text(tmp / "summary.md", summary)
+        write_json(tmp / "settings.json", {
+            "estimators": list(estimators),
+            "jobs": jobs,
+            "filter": config.to_dict(),
+            "sequences": [{"name": b.name, "path": b.path, **(b.origin or {})} for b in sequences],
+            **(settings or {}),
+        })
+    if latest_link is not None:
+        atomic_symlink(Path(out_dir).name, latest_link)
+    return BenchOutput(Path(out_dir), results, summary, time.perf_counter() - t0)
+
+
+# --- Monte Carlo NEES ------------------------------------------------------------------------
+
+
+def redraw_noise(truth, sim_config, rng: np.random.Generator) -> Sequence:
+    """The noise-free simulated drive ``truth`` (a SimResult made with ``noise_free=True``) with
+    fresh velocity and pixel noise of ``sim_config``'s levels, drawn from ``rng``.
+
+    The simulator draws all its streams from one seed (no separate noise seed), so the Monte
+    Carlo runs add the noise here: same trajectory, landmarks and tracks in every run. As in the
+    simulator, an observation whose noisy disparity falls below ``min_disparity`` is dropped
+    (here the rest of its track is kept).
+    """
+    seq = truth.sequence
+    T = seq.n_frames
+    u = np.asarray(truth.true_velocities, dtype=float).copy()
+    u[:, :3] += sim_config.velocity_sigma * rng.standard_normal((T, 3))
+    u[:, 3:] += sim_config.gyro_sigma * rng.standard_normal((T, 3)) + np.asarray(sim_config.gyro_bias)
+    z = seq.obs.z + sim_config.pixel_sigma * rng.standard_normal(seq.obs.z.shape)
+    keep = (z[:, 0] - z[:, 2]) >= sim_config.min_disparity
+    obs = Observations.from_rows(seq.obs.frame_index[keep], seq.obs.track[keep], z[keep], T)
+    return dataclasses.replace(
+        seq, linear_velocity=u[:, :3].copy(), angular_velocity=u[:, 3:].copy(), obs=obs
+    )
+
+
+def landmark_nees_by_source(est: Estimate, truth: np.ndarray) -> np.ndarray:
+    """Landmark NEES per source track (n_source,): a cleaned estimate's tracks are mapped back
+    through ``info["track_origin"]`` (the first track of a split one counts)."""
+    from eval.consistency import landmark_nees
+
+    nees = landmark_nees(est, truth)
+    out = np.full(truth.shape[0], np.nan)
+    origin = est.info.get("track_origin")
+    origin = np.arange(nees.size) if origin is None else np.asarray(origin, dtype=np.int64)
+    ok = np.isfinite(nees) & (origin >= 0) & (origin < out.size)
+    idx = np.nonzero(ok)[0][::-1]  # reversed: the first of duplicates is written last
+    out[origin[idx]] = nees[idx]
+    return out
+
+
+def monte_carlo_nees(
+    runs: int,
+    seed: int,
+    estimators: list[str],
+    config: FilterConfig,
+    frames: int | None = None,
+    jobs: int = 1,
+    show_progress: bool = True,
+) -> dict:
+    """ANEES of pose (6 dof, steps 1..T-1) and landmarks (3 dof) over ``runs`` noise draws of
+    one simulated drive (seed ``seed``); the nees.json content."""
+    from eval.consistency import LANDMARK_DOF, POSE_DOF, anees, chi2_bounds, pose_nees
+    from eval.simulate import DEFAULT_SIM, simulate
+
+    if runs < 1:
+        raise InputError(f"--runs must be >= 1, got {runs}")
+    sim_config = dataclasses.replace(
+        DEFAULT_SIM, seed=int(seed), n_frames=int(frames or DEFAULT_NEES_FRAMES), name=f"mc-seed{seed}"
+    )
+    truth = simulate(dataclasses.replace(sim_config, noise_free=True))
+    T = truth.sequence.n_frames
+    seqs = {f"run{i:03d}": redraw_noise(truth, sim_config, np.random.default_rng([seed, i]))
+            for i in range(runs)}
+
+    pose = {n: np.full((runs, T), np.nan) for n in estimators}
+    landmark = {n: np.full((runs, truth.landmarks.shape[0]), np.nan) for n in estimators}
+    runtime = {n: [] for n in estimators}
+    errors: dict[str, list[str]] = {n: [] for n in estimators}
+    frames_all = np.arange(T)
+
+    def reduce(res) -> None:  # keep only the NEES arrays, not every estimate
+        i = int(res.sequence[3:])
+        if isinstance(res, JobFailure):
+            errors[res.estimator].append(res.error)
+            return
+        est = res.estimate
+        pose[res.estimator][i] = pose_nees(est, frames_all, truth.poses)
+        landmark[res.estimator][i] = landmark_nees_by_source(est, truth.landmarks)
+        runtime[res.estimator].append(res.wall_s)
+
+    outcomes = run_jobs(seqs, estimators, config, jobs, show_progress, on_result=reduce)
+    outcomes.clear()
+    out = {
+        "runs": runs,
+        "seed": seed,
+        "frames": T,
+        "noise": "velocity and pixel noise redrawn per run (numpy default_rng([seed, run])) on "
+                 "the noise-free drive of SimConfig(seed); trajectory, landmarks, tracks fixed",
+        "definition": "anees_pose: mean over steps 1..T-1 of the per-step NEES averaged over runs; "
+                      "anees_landmark: mean over landmarks (estimated in every run) of the per-"
+                      "landmark NEES averaged over runs; bounds chi2.ppf([.025,.975], N d)/N; "
+                      "verdict 'above' = overconfident, 'below' = underconfident; "
+                      "inside_fraction = share of steps / landmarks inside the bounds",
+        "simulation": dataclasses.asdict(sim_config),
+        "filter": config.to_dict(),
+        "estimators": {},
+    }
+    for n in estimators:
+        p = anees(pose[n][:, 1:], POSE_DOF)
+        lm_ok = np.any(np.isfinite(landmark[n]), axis=0)
+        lm = anees(landmark[n][:, lm_ok], LANDMARK_DOF) if np.any(lm_ok) else None
+        per_step = np.concatenate([[np.nan], p.per_item])
+        out["estimators"][n] = {
+            "anees_pose": p.mean,
+            "anees_landmark": lm.mean if lm else None,
+            "bounds_pose": list(p.bounds),
+            "bounds_landmark": list(lm.bounds if lm else chi2_bounds(runs, LANDMARK_DOF)),
+            "verdict_pose": p.verdict,
+            "verdict_landmark": lm.verdict if lm else None,
+            "inside_fraction_pose": p.inside_fraction,
+            "inside_fraction_landmark": lm.inside_fraction if lm else None,
+            "landmarks_scored": int(np.count_nonzero(np.isfinite(lm.per_item))) if lm else 0,
+            "runs_failed": len(errors[n]),
+            "errors": errors[n][:3],
+            "runtime_s_mean": float(np.mean(runtime[n])) if runtime[n] else None,
+            "nees_pose_over_time": per_step,
+            "nees_pose_per_run_mean": [
+                float(np.nanmean(r[1:])) if np.any(np.isfinite(r[1:])) else None for r in pose[n]
+            ],
+        }
+    out["timestamps"] = truth.sequence.timestamps - truth.sequence.timestamps[0]
+    return out

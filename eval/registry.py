@@ -1,0 +1,89 @@
+"""Estimator names -> callables ``run(seq, config, progress=None, initial=None) -> Estimate``.
+
+Modules are imported only when an estimator is asked for, so ``vislam run --estimator
+ekf-joint`` never imports GTSAM. The batch smoother accepts an already computed EKF estimate
+as its initial guess (``initial``), which saves the benchmark from running the EKF twice; the
+other estimators ignore ``initial``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Protocol
+
+from ekf.errors import InputError
+
+#: Every estimator, in the order tables and plots list them.
+ESTIMATOR_NAMES: tuple[str, ...] = (
+    "dead-reckoning",
+    "mapping",
+    "ekf-decoupled",
+    "ekf-joint",
+    "ekf-invariant",
+    "smoother",
+    "smoother-isam2",
+)
+
+#: What ``vislam bench`` runs unless told otherwise (iSAM2 is the slow incremental variant).
+DEFAULT_BENCH: tuple[str, ...] = tuple(n for n in ESTIMATOR_NAMES if n != "smoother-isam2")
+
+#: The EKFs whose estimate the batch smoother starts from, first available wins (the same order
+#: as graph.smoother.EKF_INITIALISERS, which the smoother uses when it must run an EKF itself).
+SMOOTHER_INITIAL_FROM: tuple[str, ...] = ("ekf-invariant", "ekf-joint")
+
+#: Names of the smoothers (the references the EKFs are cross-validated against).
+SMOOTHERS: tuple[str, ...] = ("smoother", "smoother-isam2")
+
+_EKF_NAMES = ("dead-reckoning", "mapping", "ekf-decoupled", "ekf-joint", "ekf-invariant")
+
+
+class EstimatorFn(Protocol):
+    def __call__(self, seq, config, progress=None, initial=None): ...
+
+
+def get_estimator(name: str) -> Callable:
+    """The callable running estimator ``name``; unknown name -> :class:`InputError`."""
+    if name in _EKF_NAMES:
+        from ekf.estimators import ESTIMATORS
+
+        fn = ESTIMATORS[name]
+
+        def run_ekf(seq, config, progress=None, initial=None):
+            return fn(seq, config, progress)
+
+        return run_ekf
+    if name == "smoother":
+        from graph.smoother import run_smoother
+
+        def run_batch(seq, config, progress=None, initial=None):
+            return run_smoother(seq, config, initial=initial, progress=progress)
+
+        return run_batch
+    if name == "smoother-isam2":
+        from graph.isam2 import run_isam2
+
+        def run_incremental(seq, config, progress=None, initial=None):
+            return run_isam2(seq, config, progress=progress)
+
+        return run_incremental
+    raise InputError(f"unknown estimator {name!r}; valid names: {', '.join(ESTIMATOR_NAMES)}")
+
+
+def parse_estimator_list(text: str | None, default: tuple[str, ...]) -> list[str]:
+    """Comma-separated names (``all`` for every estimator) -> validated list in registry order."""
+    if text is None or not text.strip():
+        return list(default)
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if names == ["all"]:
+        return list(ESTIMATOR_NAMES)
+    unknown = [n for n in names if n not in ESTIMATOR_NAMES]
+    if unknown:
+        raise InputError(
+            f"unknown estimator(s) {', '.join(map(repr, unknown))}; "
+            f"valid names: {', '.join(ESTIMATOR_NAMES)}"
+        )
+    return [n for n in ESTIMATOR_NAMES if n in names]
+
+
+def uses_initial(name: str) -> bool:
+    """Whether estimator ``name`` can start from another estimator's result."""
+    return name == "smoother"

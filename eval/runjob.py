@@ -1,0 +1,268 @@
+"""One estimator on one sequence: settings from flags, the timed run, scores, output files.
+
+Shared by ``vislam run`` (one job, outputs in a folder), ``vislam bench`` and ``vislam nees``
+(many jobs in worker processes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import platform
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ekf.config import VELOCITY_PAIRINGS, FilterConfig
+from ekf.errors import InputError
+from ekf.estimate import Estimate
+
+log = logging.getLogger(__name__)
+
+#: Command-line flag -> FilterConfig field (flags override the TOML file).
+_FLAG_FIELDS = {
+    "pixel_sigma": "pixel_sigma",
+    "velocity_sigma": "velocity_sigma",
+    "gyro_sigma": "gyro_sigma",
+    "gate_probability": "gate_probability",
+    "velocity_pairing": "velocity_pairing",
+    "max_depth": "max_depth",
+    "min_disparity": "min_disparity",
+}
+
+
+# --- settings --------------------------------------------------------------------------------
+
+
+_NO_GATE = "none"
+
+
+def _gate(text: str) -> float | str:
+    if text.lower() in ("none", "off"):
+        return _NO_GATE
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a probability or 'none', got {text!r}")
+
+
+def add_filter_arguments(parser: argparse.ArgumentParser) -> None:
+    """The FilterConfig flags every estimating command shares."""
+    g = parser.add_argument_group("estimator settings (override --config)")
+    g.add_argument("--config", metavar="TOML", help="settings file ([filter] table or top level)")
+    g.add_argument("--pixel-sigma", type=float, metavar="PX", help="stereo pixel noise sigma")
+    g.add_argument("--velocity-sigma", type=float, metavar="M/S", help="linear velocity sigma")
+    g.add_argument("--gyro-sigma", type=float, metavar="RAD/S", help="angular velocity sigma")
+    g.add_argument(
+        "--gate-probability", type=_gate, metavar="P", help="chi-square gate probability or 'none'"
+    )
+    g.add_argument("--no-clean", action="store_true", help="do not split tracks at repeats")
+    g.add_argument("--velocity-pairing", choices=VELOCITY_PAIRINGS, help="velocity for [k, k+1]")
+    g.add_argument("--keep-landmarks", action="store_true", help="never marginalise landmarks")
+    g.add_argument("--gyro-bias", action="store_true", help="estimate a constant gyro bias")
+    g.add_argument("--max-depth", type=float, metavar="M", help="reject points beyond this depth")
+    g.add_argument("--min-disparity", type=float, metavar="PX", help="reject smaller disparities")
+
+
+def filter_config_from_args(args: argparse.Namespace) -> FilterConfig:
+    """FilterConfig from ``--config`` (if given) overridden by the individual flags."""
+    config = FilterConfig.from_toml(args.config) if getattr(args, "config", None) else FilterConfig()
+    changes = {}
+    for attr, name in _FLAG_FIELDS.items():
+        value = getattr(args, attr, None)
+        if value is not None:
+            changes[name] = value
+    if changes.get("gate_probability") == _NO_GATE:
+        changes["gate_probability"] = None
+    if getattr(args, "no_clean", False):
+        changes["clean_tracks"] = False
+    if getattr(args, "keep_landmarks", False):
+        changes["keep_landmarks"] = True
+    if getattr(args, "gyro_bias", False):
+        changes["gyro_bias"] = True
+    return config.replace(**changes) if changes else config
+
+
+def environment_settings() -> dict:
+    """Where and how a result was produced (for settings.json)."""
+    return {
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "host_cpus": os.cpu_count(),
+    }
+
+
+# --- progress --------------------------------------------------------------------------------
+
+
+class Progress:
+    """A progress bar on stderr (tqdm), silent when stderr is not a terminal or when disabled.
+
+    Estimators may call it as ``progress(done, total)`` or use ``progress.update(n)``.
+    """
+
+    def __init__(self, desc: str, total: int | None = None, enabled: bool = True, position=None):
+        self._bar = None
+        if enabled and sys.stderr.isatty():
+            from tqdm import tqdm
+
+            self._bar = tqdm(
+                total=total, desc=desc, file=sys.stderr, leave=False, position=position,
+                dynamic_ncols=True,
+            )
+
+    def __call__(self, done: int, total: int | None = None) -> None:
+        if self._bar is None:
+            return
+        if total is not None and self._bar.total != total:
+            self._bar.total = total
+        self._bar.n = int(done)
+        self._bar.refresh()
+
+    def update(self, n: int = 1) -> None:
+        if self._bar is not None:
+            self._bar.update(n)
+
+    def set_description(self, desc: str) -> None:
+        if self._bar is not None:
+            self._bar.set_description(desc)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+    def __enter__(self) -> "Progress":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# --- running ---------------------------------------------------------------------------------
+
+
+@dataclass
+class JobResult:
+    """One estimator's estimate on one sequence, with its wall time."""
+
+    sequence: str
+    estimator: str
+    estimate: Estimate
+    wall_s: float
+
+
+def run_estimator(
+    seq, name: str, config: FilterConfig, progress=None, initial: Estimate | None = None
+) -> JobResult:
+    """Run estimator ``name`` on ``seq`` and time it (wall clock, seconds)."""
+    from eval.registry import get_estimator
+
+    fn = get_estimator(name)
+    t0 = time.perf_counter()
+    est = fn(seq, config, progress=progress, initial=initial)
+    wall = time.perf_counter() - t0
+    if est.n_frames != seq.n_frames:
+        from ekf.errors import EstimationError
+
+        raise EstimationError(
+            f"estimator {name!r} returned {est.n_frames} poses for {seq.n_frames} frames"
+        )
+    return JobResult(seq.name, name, est, wall)
+
+
+# --- scores ----------------------------------------------------------------------------------
+
+#: What rpe_trans_pct / rpe_rot_deg_per_100m mean in every output.
+RPE_DEFINITION = (
+    "KITTI odometry drift: mean translation error (%) and rotation error (deg/100 m) over all "
+    "path segments of 100, 200, ..., 800 m (eval.metrics.kitti_drift); null when the "
+    "trajectory is shorter than the shortest segment"
+)
+
+
+def trajectory_scores(est: Estimate, gt) -> dict:
+    """ATE (raw and SE(3)-aligned), KITTI drift and mean pose NEES of ``est`` against ground
+    truth ``gt`` (frames, poses) on the frames both have; every figure None without ``gt``."""
+    out = {
+        "ate_m": None,
+        "ate_aligned_m": None,
+        "rpe_trans_pct": None,
+        "rpe_rot_deg_per_100m": None,
+        "nees_pose_mean": None,
+        "gt_frames": 0,
+    }
+    if gt is None:
+        return out
+    from eval.consistency import ate_or_none, pose_nees
+    from eval.metrics import kitti_drift
+
+    frames = np.asarray(gt.frames, dtype=np.int64)
+    keep = (frames >= 0) & (frames < est.n_frames)
+    frames, gt_poses = frames[keep], np.asarray(gt.poses)[keep]
+    if frames.size < 2:
+        return out
+    est_poses = est.poses[frames]
+    out["gt_frames"] = int(frames.size)
+    out["ate_m"] = ate_or_none(est_poses, gt_poses, align=None)
+    out["ate_aligned_m"] = ate_or_none(est_poses, gt_poses, align="se3")
+    drift = kitti_drift(est_poses, gt_poses)
+    if drift:
+        out["rpe_trans_pct"] = _num(drift.get("t_rel_pct"))
+        out["rpe_rot_deg_per_100m"] = _num(drift.get("r_rel_deg_per_100m"))
+    nees = pose_nees(est, frames, gt_poses)
+    finite = np.isfinite(nees)
+    if np.any(finite):
+        out["nees_pose_mean"] = float(nees[finite].mean())
+    return out
+
+
+def _num(x) -> float | None:
+    if x is None:
+        return None
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if np.isfinite(x) else None
+
+
+# --- outputs ---------------------------------------------------------------------------------
+
+
+def write_map_npz(path: Path, est: Estimate) -> None:
+    """Landmark positions (M, 3), 3x3 covariances and the source column of each track."""
+    origin = est.info.get("track_origin")
+    origin = (
+        np.asarray(origin, dtype=np.int64)
+        if origin is not None
+        else np.arange(est.landmarks.shape[0], dtype=np.int64)
+    )
+    with open(path, "wb") as fh:
+        np.savez_compressed(
+            fh,
+            landmarks=est.landmarks,
+            landmark_cov=est.landmark_cov,
+            track_origin=origin,
+            has_landmark=est.has_landmark,
+        )
+
+
+def write_run_outputs(out_dir: Path, seq, est: Estimate, metrics: dict, settings: dict) -> None:
+    """trajectory.tum, trajectory.kitti, map.npz, estimate.npz, metrics.json, settings.json."""
+    from eval.atomic import write_json
+    from eval.export import write_kitti, write_tum
+
+    out_dir = Path(out_dir)
+    write_tum(out_dir / "trajectory.tum", est.timestamps, est.poses)
+    write_kitti(out_dir / "trajectory.kitti", est.poses)
+    write_map_npz(out_dir / "map.npz", est)
+    est.save_npz(out_dir / "estimate.npz")
+    write_json(out_dir / "metrics.json", metrics)
+    write_json(out_dir / "settings.json", settings)
