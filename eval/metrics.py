@@ -1,0 +1,294 @@
+"""Trajectory and map accuracy, and consistency (NEES), against ground truth.
+
+Poses are ``world_T_imu`` (T, 4, 4) in float64; every figure is vectorised over the trajectory.
+
+* ATE (absolute trajectory error): RMSE of position differences (m), raw or after a
+  least-squares alignment of the estimated positions onto the true ones (Umeyama 1991: SE(3),
+  or Sim(3) with scale). Same definition as evo's APE with ``PoseRelation.translation_part``.
+* RPE (relative pose error, evo's definition): for index pairs (i, j = i + delta), non-overlapping
+  by default as in evo, ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` with Q the truth and P the estimate;
+  RMSE of the translation norm of E (m) and of its rotation angle (deg).
+* KITTI drift (the KITTI odometry devkit, ``evaluate_odometry.cpp``): segments of 100..800 m of
+  travelled true path, starting every ``step`` frames; the error of a segment is
+  ``inv(est_i^-1 est_j) @ (gt_i^-1 gt_j)`` (the devkit's order; the inverse has the same
+  translation norm and rotation angle), its translation norm and rotation angle divided by the
+  segment length, averaged over all segments of all lengths: percent and degrees per 100 m.
+* NEES of poses in the :class:`ekf.estimate.Estimate` convention: right perturbation,
+  translation first, ``xi = se3_log(inv(est) @ gt)``, ``NEES = xi^T cov^-1 xi`` (6 dof);
+  of points ``e = gt - est`` (3 dof).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ekf.errors import InputError
+from ekf.geometry import se3_inv, se3_log, vee
+
+#: Segment lengths (m) of the KITTI odometry benchmark.
+KITTI_LENGTHS = (100, 200, 300, 400, 500, 600, 700, 800)
+
+
+def _poses(x, what: str) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 3 or x.shape[1:] != (4, 4):
+        raise InputError(f"{what}: poses must have shape (T, 4, 4), got {x.shape}")
+    return x
+
+
+def _pair(est, gt) -> tuple[np.ndarray, np.ndarray]:
+    est, gt = _poses(est, "estimated trajectory"), _poses(gt, "ground truth")
+    if est.shape[0] != gt.shape[0]:
+        raise InputError(
+            f"estimated trajectory has {est.shape[0]} poses, ground truth {gt.shape[0]}; "
+            "select the common frames first"
+        )
+    return est, gt
+
+
+def rotation_angle(R: np.ndarray) -> np.ndarray:
+    """Angle (rad, in [0, pi]) of rotation matrices (..., 3, 3), accurate near 0 and pi."""
+    R = np.asarray(R, dtype=np.float64)
+    sin_t = np.linalg.norm(vee(R - np.swapaxes(R, -1, -2)), axis=-1) / 2.0
+    cos_t = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
+    return np.arctan2(sin_t, cos_t)
+
+
+def _rmse(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+# --------------------------------------------------------------------------- alignment
+
+
+def umeyama(
+    src: np.ndarray, dst: np.ndarray, with_scale: bool = False
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least-squares ``(R, t, s)`` minimising ``sum ||dst_i - (s R src_i + t)||^2``.
+
+    ``src``, ``dst`` (N, 3). ``s`` is 1 unless ``with_scale``. Raises :class:`InputError` when
+    the points are too few or degenerate (collinear) for a unique rotation.
+    """
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
+        raise InputError(f"umeyama: need two (N, 3) point sets, got {src.shape} and {dst.shape}")
+    n = src.shape[0]
+    if n < 3:
+        raise InputError(f"umeyama: need at least 3 points, got {n}")
+    if not (np.all(np.isfinite(src)) and np.all(np.isfinite(dst))):
+        raise InputError("umeyama: points contain non-finite values")
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    xs, xd = src - mu_s, dst - mu_d
+    var_s = np.sum(xs * xs) / n
+    cov = xd.T @ xs / n  # Umeyama eq. 38
+    U, d, Vt = np.linalg.svd(cov)
+    if not np.all(np.isfinite(d)) or np.count_nonzero(d > 1e-12 * max(d[0], 1e-300)) < 2:
+        raise InputError(f"umeyama: the {n} points are degenerate (collinear or identical)")
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1.0
+    R = U @ S @ Vt
+    s = float(np.sum(d * np.diag(S)) / var_s) if with_scale else 1.0
+    t = mu_d - s * R @ mu_s
+    return R, t, s
+
+
+def align_trajectory(est_poses, gt_poses, mode: str = "se3") -> np.ndarray:
+    """Estimated poses moved onto the ground truth by the Umeyama fit of their positions.
+
+    ``mode`` "se3" (rotation and translation) or "sim3" (also scale: positions are scaled, then
+    the rigid transform is applied to the whole pose, as evo does).
+    """
+    est, gt = _pair(est_poses, gt_poses)
+    if mode not in ("se3", "sim3"):
+        raise InputError(f"alignment mode must be 'se3' or 'sim3', got {mode!r}")
+    R, t, s = umeyama(est[:, :3, 3], gt[:, :3, 3], with_scale=mode == "sim3")
+    out = est.copy()
+    out[:, :3, :3] = R @ est[:, :3, :3]
+    out[:, :3, 3] = s * est[:, :3, 3] @ R.T + t
+    return out
+
+
+# --------------------------------------------------------------------------- ATE, RPE
+
+
+def ate_rmse(est_poses, gt_poses, align: str | None = None) -> float:
+    """Translation RMSE (m) of the absolute trajectory error, after optional alignment."""
+    est, gt = _pair(est_poses, gt_poses)
+    if align is not None:
+        est = align_trajectory(est, gt, align)
+    return _rmse(np.linalg.norm(est[:, :3, 3] - gt[:, :3, 3], axis=1))
+
+
+def rpe_pairs(n: int, delta: int, all_pairs: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i, i + delta): consecutive non-overlapping ones (evo's default) or all."""
+    if delta < 1:
+        raise InputError(f"RPE delta must be at least 1 frame, got {delta}")
+    if all_pairs:
+        i = np.arange(max(n - delta, 0))
+        return i, i + delta
+    ids = np.arange(0, n, delta)
+    return ids[:-1], ids[1:]
+
+
+def rpe(est_poses, gt_poses, delta: int = 1, all_pairs: bool = False) -> dict:
+    """Relative pose error over ``delta`` frames (evo's definition; see the module docstring).
+
+    Returns ``trans_rmse_m``, ``trans_mean_m``, ``rot_rmse_deg``, ``rot_mean_deg`` and
+    ``n_pairs``; the figures are None when the trajectory is shorter than ``delta + 1`` poses.
+    """
+    est, gt = _pair(est_poses, gt_poses)
+    i, j = rpe_pairs(est.shape[0], int(delta), all_pairs)
+    if i.size == 0:
+        return dict(trans_rmse_m=None, trans_mean_m=None, rot_rmse_deg=None, rot_mean_deg=None,
+                    n_pairs=0)
+    rel_gt = se3_inv(gt[i]) @ gt[j]
+    rel_est = se3_inv(est[i]) @ est[j]
+    E = se3_inv(rel_gt) @ rel_est
+    t_err = np.linalg.norm(E[:, :3, 3], axis=1)
+    r_err = np.degrees(rotation_angle(E[:, :3, :3]))
+    return dict(
+        trans_rmse_m=_rmse(t_err),
+        trans_mean_m=float(t_err.mean()),
+        rot_rmse_deg=_rmse(r_err),
+        rot_mean_deg=float(r_err.mean()),
+        n_pairs=int(i.size),
+    )
+
+
+# --------------------------------------------------------------------------- KITTI drift
+
+
+def kitti_drift(est_poses, gt_poses, lengths=KITTI_LENGTHS, step: int = 10) -> dict:
+    """KITTI odometry drift (devkit ``calcSequenceErrors``).
+
+    Returns ``t_rel_pct`` (mean translation error per metre, in percent), ``r_rel_deg_per_100m``
+    (mean rotation error per metre, in degrees per 100 m), ``n_segments``, and ``per_length``
+    {length: (t_rel_pct, r_rel_deg_per_100m, n)} for the lengths that had segments. The two
+    figures are None when the path is shorter than every segment length.
+    """
+    est, gt = _pair(est_poses, gt_poses)
+    n = gt.shape[0]
+    # Distance travelled along the true path up to each frame (devkit trajectoryDistances).
+    dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1))])
+    first = np.arange(0, n, int(step))
+    t_all, r_all, per_length = [], [], {}
+    for length in lengths:
+        # devkit lastFrameFromSegmentLength: first frame whose distance exceeds dist[i] + len.
+        last = np.searchsorted(dist, dist[first] + length, side="right")
+        ok = last < n
+        i, j = first[ok], last[ok]
+        if i.size == 0:
+            continue
+        err = se3_inv(se3_inv(est[i]) @ est[j]) @ (se3_inv(gt[i]) @ gt[j])
+        t_err = np.linalg.norm(err[:, :3, 3], axis=1) / length
+        r_err = rotation_angle(err[:, :3, :3]) / length
+        t_all.append(t_err)
+        r_all.append(r_err)
+        per_length[int(length)] = (
+            float(100.0 * t_err.mean()),
+            float(np.degrees(r_err.mean()) * 100.0),
+            int(i.size),
+        )
+    if not t_all:
+        return dict(t_rel_pct=None, r_rel_deg_per_100m=None, n_segments=0, per_length={})
+    t_cat, r_cat = np.concatenate(t_all), np.concatenate(r_all)
+    return dict(
+        t_rel_pct=float(100.0 * t_cat.mean()),
+        r_rel_deg_per_100m=float(np.degrees(r_cat.mean()) * 100.0),
+        n_segments=int(t_cat.size),
+        per_length=per_length,
+    )
+
+
+# --------------------------------------------------------------------------- NEES
+
+
+def pose_errors(est_poses, gt_poses) -> np.ndarray:
+    """Right-perturbation errors ``xi = se3_log(inv(est) @ gt)`` (T, 6), translation first."""
+    est, gt = _pair(est_poses, gt_poses)
+    return se3_log(se3_inv(est) @ gt)
+
+
+def _nees(e: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``e^T cov^-1 e`` per row; NaN where the covariance is missing or singular."""
+    out = np.full(e.shape[0], np.nan)
+    good = np.all(np.isfinite(cov.reshape(cov.shape[0], -1)), axis=1) & np.all(np.isfinite(e), axis=1)
+    if np.any(good):
+        c, x = cov[good], e[good]
+        try:
+            sol = np.linalg.solve(c, x[..., None])[..., 0]
+            out[good] = np.sum(x * sol, axis=1)
+        except np.linalg.LinAlgError:
+            for k, (ck, xk) in zip(np.flatnonzero(good), zip(c, x)):
+                try:
+                    out[k] = float(xk @ np.linalg.solve(ck, xk))
+                except np.linalg.LinAlgError:
+                    pass
+    return out
+
+
+def nees_pose(est_poses, est_cov, gt_poses) -> np.ndarray:
+    """Pose NEES (T,), 6 dof, in the Estimate convention (right perturbation, translation
+    first). NaN where the covariance is NaN or singular."""
+    e = pose_errors(est_poses, gt_poses)
+    cov = np.asarray(est_cov, dtype=np.float64)
+    if cov.shape != (e.shape[0], 6, 6):
+        raise InputError(f"pose covariances must have shape ({e.shape[0]}, 6, 6), got {cov.shape}")
+    return _nees(e, cov)
+
+
+def nees_points(est, cov, gt) -> np.ndarray:
+    """Point NEES (N,), 3 dof: ``(gt - est)^T cov^-1 (gt - est)``; NaN where not estimated."""
+    est = np.asarray(est, dtype=np.float64)
+    gt = np.asarray(gt, dtype=np.float64)
+    cov = np.asarray(cov, dtype=np.float64)
+    if est.shape != gt.shape or est.ndim != 2 or est.shape[1] != 3:
+        raise InputError(f"points must be two (N, 3) arrays, got {est.shape} and {gt.shape}")
+    if cov.shape != (est.shape[0], 3, 3):
+        raise InputError(f"point covariances must have shape ({est.shape[0]}, 3, 3), got {cov.shape}")
+    return _nees(gt - est, cov)
+
+
+# --------------------------------------------------------------------------- summary
+
+
+def trajectory_metrics(est, gt_poses, frames=None) -> dict:
+    """Every trajectory figure of one estimate against ground truth.
+
+    ``est`` an :class:`ekf.estimate.Estimate` (or a (T, 4, 4) pose array); ``gt_poses`` the
+    true ``world_T_imu`` of ``frames`` (indices into the estimate; all frames when None, e.g.
+    the 1101 of 1106 frames of 0027 that have ground truth). Keys are always present; a figure
+    that cannot be computed (too short, degenerate alignment) is None.
+    """
+    poses = np.asarray(getattr(est, "poses", est), dtype=np.float64)
+    poses = _poses(poses, "estimate")
+    if frames is not None:
+        frames = np.asarray(frames, dtype=np.int64)
+        if frames.ndim != 1 or (frames.size and (frames.min() < 0 or frames.max() >= poses.shape[0])):
+            raise InputError(f"frames must index the estimate's {poses.shape[0]} poses")
+        poses = poses[frames]
+    est_p, gt = _pair(poses, gt_poses)
+    out: dict = {"n_frames": int(gt.shape[0])}
+    out["ate_rmse_m"] = ate_rmse(est_p, gt) if gt.shape[0] else None
+    for mode in ("se3", "sim3"):
+        try:
+            R, t, s = umeyama(est_p[:, :3, 3], gt[:, :3, 3], with_scale=mode == "sim3")
+        except InputError:
+            out[f"ate_{mode}_rmse_m"] = None
+            if mode == "sim3":
+                out["sim3_scale"] = None
+            continue
+        out[f"ate_{mode}_rmse_m"] = ate_rmse(est_p, gt, align=mode)
+        if mode == "sim3":
+            out["sim3_scale"] = s
+    for delta in (1, 10):
+        r = rpe(est_p, gt, delta=delta)
+        out[f"rpe{delta}_trans_rmse_m"] = r["trans_rmse_m"]
+        out[f"rpe{delta}_rot_rmse_deg"] = r["rot_rmse_deg"]
+    drift = kitti_drift(est_p, gt)
+    out["kitti_t_rel_pct"] = drift["t_rel_pct"]
+    out["kitti_r_rel_deg_per_100m"] = drift["r_rel_deg_per_100m"]
+    out["kitti_n_segments"] = drift["n_segments"]
+    return out

@@ -1,0 +1,275 @@
+"""Trajectory metrics against evo (an independent implementation) and hand-made cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from ekf.errors import InputError
+from ekf.estimate import Estimate
+from ekf.geometry import se3_exp, so3_exp
+from eval.metrics import (
+    align_trajectory,
+    ate_rmse,
+    kitti_drift,
+    nees_points,
+    nees_pose,
+    rotation_angle,
+    rpe,
+    trajectory_metrics,
+    umeyama,
+)
+
+evo_traj = pytest.importorskip("evo.core.trajectory")
+evo_metrics = pytest.importorskip("evo.core.metrics")
+
+
+def _random_drive(rng, n=300, dt=0.1):
+    """A smooth random drive (T, 4, 4) integrated from random body twists."""
+    u = np.zeros((n - 1, 6))
+    u[:, 0] = 8.0 + rng.normal(0, 0.5, n - 1)
+    u[:, 3:] = rng.normal(0, 0.05, (n - 1, 3))
+    steps = se3_exp(dt * u)
+    poses = np.empty((n, 4, 4))
+    poses[0] = np.eye(4)
+    for k in range(n - 1):
+        poses[k + 1] = poses[k] @ steps[k]
+    return poses
+
+
+def _perturbed(rng, gt, sigma_t=0.3, sigma_r=0.01, drift=True):
+    """An estimate: ground truth with a random walk of errors (right perturbations)."""
+    noise = np.concatenate(
+        [rng.normal(0, sigma_t, (gt.shape[0], 3)), rng.normal(0, sigma_r, (gt.shape[0], 3))], axis=1
+    )
+    if drift:
+        noise = np.cumsum(noise, axis=0) / np.sqrt(gt.shape[0])
+    return gt @ se3_exp(noise)
+
+
+def _evo(poses):
+    return evo_traj.PosePath3D(poses_se3=list(poses))
+
+
+@pytest.fixture(params=[0, 1, 2])
+def pair(request):
+    rng = np.random.default_rng(request.param)
+    gt = _random_drive(rng)
+    # Put the estimate in a different frame and scale so alignment has work to do.
+    est = _perturbed(rng, gt)
+    offset = se3_exp(np.array([3.0, -2.0, 1.0, 0.05, -0.1, 0.3]))
+    return est, gt, offset
+
+
+@pytest.mark.parametrize("align", [None, "se3", "sim3"])
+def test_ate_matches_evo(pair, align):
+    est, gt, offset = pair
+    est = offset @ est
+    if align == "sim3":
+        est = est.copy()
+        est[:, :3, 3] *= 0.8
+    ref, traj = _evo(gt), _evo(est)
+    if align is not None:
+        traj.align(ref, correct_scale=align == "sim3")
+    ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+    ape.process_data((ref, traj))
+    expected = ape.get_statistic(evo_metrics.StatisticsType.rmse)
+    assert ate_rmse(est, gt, align=align) == pytest.approx(expected, abs=1e-6)
+
+
+@pytest.mark.parametrize("delta", [1, 10, 37])
+@pytest.mark.parametrize("all_pairs", [False, True])
+def test_rpe_matches_evo(pair, delta, all_pairs):
+    est, gt, _ = pair
+    ours = rpe(est, gt, delta=delta, all_pairs=all_pairs)
+    for relation, key in [
+        (evo_metrics.PoseRelation.translation_part, "trans_rmse_m"),
+        (evo_metrics.PoseRelation.rotation_angle_deg, "rot_rmse_deg"),
+    ]:
+        m = evo_metrics.RPE(relation, delta=delta, delta_unit=evo_metrics.Unit.frames,
+                            all_pairs=all_pairs)
+        m.process_data((_evo(gt), _evo(est)))
+        assert ours[key] == pytest.approx(m.get_statistic(evo_metrics.StatisticsType.rmse), abs=1e-6)
+        assert ours["n_pairs"] == len(m.error)
+
+
+def test_rpe_is_invariant_to_a_global_transform(pair):
+    est, gt, offset = pair
+    a, b = rpe(est, gt, delta=5), rpe(offset @ est, gt, delta=5)
+    assert a["trans_rmse_m"] == pytest.approx(b["trans_rmse_m"], rel=1e-9)
+
+
+def test_umeyama_recovers_a_known_transform_exactly():
+    rng = np.random.default_rng(5)
+    src = rng.normal(0, 10, (50, 3))
+    R = so3_exp(np.array([0.3, -1.2, 2.0]))
+    t = np.array([4.0, -7.0, 0.5])
+    R_hat, t_hat, s_hat = umeyama(src, src @ R.T + t)
+    np.testing.assert_allclose(R_hat, R, atol=1e-12)
+    np.testing.assert_allclose(t_hat, t, atol=1e-10)
+    assert s_hat == 1.0
+    R_hat, t_hat, s_hat = umeyama(src, 2.5 * src @ R.T + t, with_scale=True)
+    np.testing.assert_allclose(R_hat, R, atol=1e-12)
+    np.testing.assert_allclose(t_hat, t, atol=1e-10)
+    assert s_hat == pytest.approx(2.5, rel=1e-12)
+
+
+def test_umeyama_handles_a_reflection_and_rejects_degenerate_points():
+    rng = np.random.default_rng(6)
+    src = rng.normal(0, 1, (20, 3))
+    R, _, _ = umeyama(src, src * np.array([1.0, 1.0, -1.0]))
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    line = np.outer(np.arange(10.0), [1.0, 2.0, 3.0])
+    with pytest.raises(InputError, match="degenerate"):
+        umeyama(line, line)
+    with pytest.raises(InputError, match="at least 3"):
+        umeyama(src[:2], src[:2])
+
+
+def test_alignment_undoes_a_global_similarity(pair):
+    _, gt, offset = pair
+    est = offset @ gt
+    assert ate_rmse(est, gt) > 1.0
+    assert ate_rmse(est, gt, align="se3") < 1e-9
+    np.testing.assert_allclose(align_trajectory(est, gt, "se3"), gt, atol=1e-9)
+    scaled = est.copy()
+    scaled[:, :3, 3] *= 1.7
+    assert ate_rmse(scaled, gt, align="se3") > 1.0
+    assert ate_rmse(scaled, gt, align="sim3") < 1e-9
+
+
+def test_rotation_angle_is_accurate_small_and_large():
+    for angle in (1e-10, 1e-5, 0.3, np.pi - 1e-6):
+        R = so3_exp(angle * np.array([0.6, 0.0, 0.8]))
+        assert rotation_angle(R) == pytest.approx(angle, rel=1e-9)
+
+
+def test_kitti_drift_of_a_one_percent_scale_error():
+    # A straight 1 km drive; the estimate travels 1 % further: 1 % drift, no rotation error.
+    n = 1001
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3] = np.arange(n) * 1.0
+    est = gt.copy()
+    est[:, 0, 3] *= 1.01
+    d = kitti_drift(est, gt)
+    assert d["t_rel_pct"] == pytest.approx(1.0, rel=0.02)
+    assert d["r_rel_deg_per_100m"] == pytest.approx(0.0, abs=1e-9)
+    # Segments start every 10 frames; 100 m needs frames 0..899 as starts (last > first + 100).
+    assert d["n_segments"] == sum(len(range(0, n - length - 1, 10)) + 0 for length in range(100, 900, 100))
+
+
+def _devkit_reference(est, gt, lengths=range(100, 900, 100), step=10):
+    """A literal loop port of the KITTI devkit's calcSequenceErrors, for comparison."""
+    dist = [0.0]
+    for i in range(1, len(gt)):
+        dist.append(dist[-1] + float(np.linalg.norm(gt[i, :3, 3] - gt[i - 1, :3, 3])))
+    t_errs, r_errs = [], []
+    for first in range(0, len(gt), step):
+        for length in lengths:
+            last = next((i for i in range(first, len(dist)) if dist[i] > dist[first] + length), -1)
+            if last == -1:
+                continue
+            d_gt = np.linalg.inv(gt[first]) @ gt[last]
+            d_est = np.linalg.inv(est[first]) @ est[last]
+            err = np.linalg.inv(d_est) @ d_gt
+            a, b, c = err[0, 0], err[1, 1], err[2, 2]
+            r_errs.append(np.arccos(max(min(0.5 * (a + b + c - 1.0), 1.0), -1.0)) / length)
+            t_errs.append(np.linalg.norm(err[:3, 3]) / length)
+    return 100 * np.mean(t_errs), np.degrees(np.mean(r_errs)) * 100, len(t_errs)
+
+
+def test_kitti_drift_matches_a_port_of_the_devkit():
+    rng = np.random.default_rng(3)
+    gt = _random_drive(rng, n=1500)
+    est = _perturbed(rng, gt, sigma_t=2.0, sigma_r=0.05)
+    t_ref, r_ref, n_ref = _devkit_reference(est, gt)
+    d = kitti_drift(est, gt)
+    assert d["n_segments"] == n_ref
+    assert d["t_rel_pct"] == pytest.approx(t_ref, rel=1e-9)
+    assert d["r_rel_deg_per_100m"] == pytest.approx(r_ref, rel=1e-6)
+    assert set(d["per_length"]) == set(range(100, 900, 100))
+    # A pure scale error of 1 % on a curved drive: 1 % of the chord over the path length.
+    scaled = gt.copy()
+    scaled[:, :3, 3] *= 1.01
+    d = kitti_drift(scaled, gt)
+    assert 0.99 < d["t_rel_pct"] <= 1.0
+    assert d["t_rel_pct"] == pytest.approx(_devkit_reference(scaled, gt)[0], rel=1e-9)
+
+
+def test_kitti_drift_of_a_constant_yaw_rate_error():
+    # A heading error growing 1 deg per 100 m gives a rotation drift of 1 deg / 100 m.
+    n = 1001
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3] = np.arange(n) * 1.0
+    est = gt.copy()
+    est[:, :3, :3] = so3_exp(np.outer(np.radians(np.arange(n) / 100.0), [0, 0, 1.0]))
+    d = kitti_drift(est, gt)
+    # Segment length L + 1 m (the first frame strictly beyond L): (L + 1) / L deg per 100 m.
+    expected = np.mean([(L + 1) / L for L in range(100, 900, 100)
+                        for _ in range(0, n - L - 1, 10)])
+    assert d["r_rel_deg_per_100m"] == pytest.approx(expected, rel=1e-9)
+
+
+def test_short_trajectory_gives_none_not_missing():
+    rng = np.random.default_rng(4)
+    gt = _random_drive(rng, n=50)  # about 40 m
+    est = _perturbed(rng, gt)
+    d = kitti_drift(est, gt)
+    assert d["t_rel_pct"] is None and d["r_rel_deg_per_100m"] is None and d["n_segments"] == 0
+    m = trajectory_metrics(est, gt)
+    assert m["kitti_t_rel_pct"] is None and m["kitti_n_segments"] == 0
+    assert m["rpe10_trans_rmse_m"] is not None
+    m2 = trajectory_metrics(est[:5], gt[:5])
+    assert m2["rpe10_trans_rmse_m"] is None and m2["rpe10_rot_rmse_deg"] is None
+    m3 = trajectory_metrics(est[:2], gt[:2])
+    assert m3["ate_se3_rmse_m"] is None and m3["ate_sim3_rmse_m"] is None and m3["sim3_scale"] is None
+    assert m3["ate_rmse_m"] is not None
+    assert set(m3) == set(m)
+
+
+def test_trajectory_metrics_with_an_estimate_and_frames(pair):
+    est, gt, _ = pair
+    e = Estimate.empty("test", np.arange(est.shape[0] + 5) * 0.1, n_tracks=0)
+    e.poses[: est.shape[0]] = est
+    frames = np.arange(est.shape[0])
+    m = trajectory_metrics(e, gt, frames)
+    assert m["n_frames"] == gt.shape[0]
+    assert m["ate_rmse_m"] == pytest.approx(ate_rmse(est, gt))
+    assert m["ate_se3_rmse_m"] <= m["ate_rmse_m"]
+    assert m["ate_sim3_rmse_m"] <= m["ate_se3_rmse_m"] + 1e-12
+    assert m["rpe1_trans_rmse_m"] == pytest.approx(rpe(est, gt, 1)["trans_rmse_m"])
+    assert m["kitti_n_segments"] > 0
+    with pytest.raises(InputError, match="poses"):
+        trajectory_metrics(e, gt)  # 305 estimated poses against 300 true ones
+
+
+def test_pose_nees_is_chi_square_6_when_errors_follow_the_covariance():
+    rng = np.random.default_rng(8)
+    n = 4000
+    gt = _random_drive(rng, n=n)
+    A = rng.normal(0, 0.1, (6, 6))
+    cov = A @ A.T + 1e-3 * np.eye(6)
+    xi = rng.multivariate_normal(np.zeros(6), cov, n)
+    est = gt @ se3_exp(-xi)  # gt = est @ exp(xi) to first order... exactly: est = gt exp(-xi)
+    nees = nees_pose(est, np.broadcast_to(cov, (n, 6, 6)), gt)
+    lo, hi = chi2.ppf([0.0005, 0.9995], 6 * n) / n
+    assert lo < nees.mean() < hi
+    # Exact convention check: est @ exp(xi) == gt gives xi back.
+    e = nees_pose(gt[:1] @ se3_exp(-np.array([[0.1, 0, 0, 0, 0, 0]])), np.eye(6)[None] * 0.01,
+                  gt[:1])
+    assert e[0] == pytest.approx(1.0, rel=1e-12)
+
+
+def test_nees_nan_where_no_covariance_and_points():
+    rng = np.random.default_rng(9)
+    gt = rng.normal(0, 10, (100, 3))
+    cov = np.broadcast_to(np.diag([0.1, 0.2, 0.3]), (100, 3, 3)).copy()
+    est = gt + rng.normal(0, 1, (100, 3)) * np.sqrt([0.1, 0.2, 0.3])
+    cov[3] = np.nan
+    nees = nees_points(est, cov, gt)
+    assert np.isnan(nees[3]) and np.isfinite(np.delete(nees, 3)).all()
+    e = gt[0] - est[0]
+    assert nees[0] == pytest.approx(e @ np.linalg.solve(cov[0], e))
+    with pytest.raises(InputError, match="covariances"):
+        nees_points(est, cov[:5], gt)
