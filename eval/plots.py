@@ -68,7 +68,7 @@ def plot_trajectories(
     ax = fig.add_subplot()
     pts = []
     if gt_positions is not None:
-        ax.plot(gt_positions[:, 0], gt_positions[:, 1], zorder=5, **GT_STYLE)
+        ax.plot(gt_positions[:, 0], gt_positions[:, 1], zorder=10, **GT_STYLE)
         pts.append(gt_positions[:, :2])
     for i, (name, est) in enumerate(estimates.items()):
         p = est.positions
@@ -107,10 +107,10 @@ def plot_map(
                    label=f"true landmarks ({len(tl)})")
     ax.scatter(lm[near, 0], lm[near, 1], s=2, c="tab:blue", alpha=0.6,
                label=f"{est.estimator} landmarks ({int(near.sum())} of {len(lm)} shown)")
+    ax.plot(traj[:, 0], traj[:, 1], color="tab:red", linewidth=2.0, label=f"{est.estimator} trajectory",
+            zorder=5)
     if gt_positions is not None:
-        ax.plot(gt_positions[:, 0], gt_positions[:, 1], zorder=5, **GT_STYLE)
-    ax.plot(traj[:, 0], traj[:, 1], color="tab:red", linewidth=1.5, label=f"{est.estimator} trajectory",
-            zorder=6)
+        ax.plot(gt_positions[:, 0], gt_positions[:, 1], zorder=6, **GT_STYLE)
     _equal_xy(ax, np.concatenate([traj[:, :2], lm[near, :2]]))
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")

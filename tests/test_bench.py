@@ -1,0 +1,166 @@
+"""`vislam bench` and `vislam nees` end to end on short simulated drives."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from ekf.config import FilterConfig
+from eval import benchmark
+from eval.cli import main
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+FAST = "dead-reckoning,ekf-joint,smoother"
+
+
+def _check_schema(results: dict, estimators: list[str]) -> None:
+    assert results["schema"] == benchmark.SCHEMA and results["rpe_definition"]
+    for s in results["sequences"]:
+        assert set(benchmark.SEQUENCE_KEYS) <= set(s)
+        assert [r["name"] for r in s["estimators"]] == estimators
+        for r in s["estimators"]:
+            assert set(benchmark.ESTIMATOR_KEYS) <= set(r), r
+            assert set(benchmark.VS_SMOOTHER_KEYS) <= set(r["vs_smoother"]), r
+
+
+@pytest.mark.slow
+def test_bench_on_a_short_simulation_writes_everything(tmp_path, capsys):
+    out = tmp_path / "bench"
+    rc = main(["bench", "--frames", "70", "-e", FAST, "-j", "2", "--out", str(out), "--quiet"])
+    assert rc == 0
+    results = json.loads((out / "results.json").read_text())
+    _check_schema(results, FAST.split(","))
+    (seq,) = results["sequences"]
+    assert seq["has_ground_truth"] and seq["frames"] == 70 and seq["path"] is None
+    rows = {r["name"]: r for r in seq["estimators"]}
+    for r in rows.values():
+        assert r["error"] is None
+        assert r["runtime_s"] > 0 and r["ate_m"] is not None and r["nees_pose_mean"] is not None
+        assert r["rpe_trans_pct"] is None  # 70 frames: shorter than every KITTI segment
+    assert rows["ekf-joint"]["map_rmse_m"] is not None
+    assert rows["ekf-joint"]["vs_smoother"]["map_rmse_m"] is not None
+    assert rows["ekf-joint"]["vs_smoother"]["inside_95_fraction"] is not None
+    assert all(v is None for v in rows["smoother"]["vs_smoother"].values())
+    assert rows["dead-reckoning"]["map_rmse_m"] is None  # no landmarks: null, not absent
+    assert (out / "summary.md").read_text().count("| ekf-joint |") == 1
+    settings = json.loads((out / "settings.json").read_text())
+    assert settings["estimators"] == FAST.split(",") and "filter" in settings
+    folder = out / seq["name"]
+    for name in FAST.split(","):
+        assert len((folder / f"{name}.tum").read_text().splitlines()) == 70
+    pngs = sorted(p.name for p in folder.glob("*.png"))
+    assert pngs == ["error_over_distance.png", "map.png", "nees.png", "trajectories.png",
+                    "vs_smoother.png"]
+    for p in folder.glob("*.png"):
+        assert p.read_bytes().startswith(PNG_MAGIC) and p.stat().st_size > 5000
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_bench_default_folder_and_latest_link(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["bench", "--frames", "30", "-e", "dead-reckoning", "-j", "1"]) == 0
+    assert "| dead-reckoning |" in capsys.readouterr().out
+    latest = tmp_path / "results" / "latest"
+    assert latest.is_symlink() and (latest / "results.json").is_file()
+    (run_dir,) = [p for p in (tmp_path / "results").iterdir() if p.name != "latest"]
+    assert os.readlink(latest) == run_dir.name
+
+
+@pytest.mark.parametrize("exc", [RuntimeError("boom"), KeyboardInterrupt()])
+def test_bench_leaves_nothing_when_interrupted(tmp_path, monkeypatch, exc):
+    def fail(*args, **kwargs):
+        raise exc
+
+    monkeypatch.setattr(benchmark, "summary_markdown", fail)  # after TUM files and figures
+    out = tmp_path / "bench"
+    with pytest.raises(type(exc)):
+        benchmark.run_benchmark(
+            benchmark.collect_sequences([], frames=30), ["dead-reckoning"],
+            FilterConfig(), out,
+            show_progress=False,
+        )
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_bench_keeps_a_previous_result_when_a_rerun_fails(tmp_path, monkeypatch):
+    out = tmp_path / "bench"
+    assert main(["bench", "--frames", "30", "-e", "dead-reckoning", "-j", "1", "--out", str(out), "-q"]) == 0
+    before = (out / "results.json").read_text()
+    monkeypatch.setattr(benchmark, "summary_markdown", lambda r: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        main(["bench", "--frames", "30", "-e", "dead-reckoning", "-j", "1", "--out", str(out), "-q"])
+    assert (out / "results.json").read_text() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["bench"]
+
+
+def test_bench_bad_input_exits_2_and_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "bench"
+    assert main(["bench", str(tmp_path / "missing.npz"), "--out", str(out)]) == 2
+    assert main(["bench", "--frames", "30", "-e", "ekf-nonsense", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "missing.npz" in err and "ekf-joint" in err  # names the file; lists valid names
+    assert not out.exists()
+
+
+def test_failed_estimator_is_recorded_with_null_figures(tmp_path, monkeypatch):
+    from ekf.errors import EstimationError
+    import eval.registry as registry
+
+    real = registry.get_estimator
+
+    def fake(name):
+        if name == "ekf-joint":
+            def broken(seq, config, progress=None, initial=None):
+                raise EstimationError("ekf-joint: innovation covariance not positive definite")
+            return broken
+        return real(name)
+
+    monkeypatch.setattr(registry, "get_estimator", fake)
+    res = benchmark.run_benchmark(
+        benchmark.collect_sequences([], frames=30), ["dead-reckoning", "ekf-joint"],
+        FilterConfig(), tmp_path / "b",
+        show_progress=False,
+    )
+    rows = {r["name"]: r for r in res.results["sequences"][0]["estimators"]}
+    assert "positive definite" in rows["ekf-joint"]["error"]
+    assert rows["ekf-joint"]["ate_m"] is None and rows["dead-reckoning"]["ate_m"] is not None
+    _check_schema(res.results, ["dead-reckoning", "ekf-joint"])
+
+
+def test_redrawn_noise_keeps_the_drive_and_changes_the_noise():
+    from eval.simulate import SimConfig, simulate
+
+    cfg = SimConfig(seed=3, n_frames=40)
+    truth = simulate(SimConfig(seed=3, n_frames=40, noise_free=True))
+    a = benchmark.redraw_noise(truth, cfg, np.random.default_rng([3, 0]))
+    b = benchmark.redraw_noise(truth, cfg, np.random.default_rng([3, 1]))
+    assert a.n_tracks == b.n_tracks == truth.sequence.n_tracks
+    dv = a.linear_velocity - truth.true_velocities[:, :3]
+    assert 0.3 < dv.std() < 0.7  # velocity_sigma 0.5
+    assert not np.allclose(a.linear_velocity, b.linear_velocity)
+    assert np.array_equal(a.timestamps, truth.sequence.timestamps)
+
+
+@pytest.mark.slow
+def test_nees_command_writes_json_and_plot(tmp_path, capsys):
+    out = tmp_path / "nees"
+    rc = main(["nees", "--runs", "3", "--frames", "40", "-e", "dead-reckoning,ekf-joint",
+               "-j", "2", "--out", str(out)])
+    assert rc == 0
+    data = json.loads((out / "nees.json").read_text())
+    assert data["runs"] == 3 and data["frames"] == 40
+    for name in ("dead-reckoning", "ekf-joint"):
+        r = data["estimators"][name]
+        for key in ("anees_pose", "anees_landmark", "bounds_pose", "bounds_landmark",
+                    "verdict_pose", "verdict_landmark", "nees_pose_over_time"):
+            assert key in r
+        assert len(r["nees_pose_over_time"]) == 40 and r["anees_pose"] > 0
+        assert r["verdict_pose"] in ("inside", "above", "below")
+        assert r["bounds_pose"][0] < 6 < r["bounds_pose"][1]
+    assert data["estimators"]["ekf-joint"]["anees_landmark"] is not None
+    assert data["estimators"]["dead-reckoning"]["anees_landmark"] is None
+    assert (out / "nees.png").read_bytes().startswith(PNG_MAGIC)
+    assert "ANEES" in capsys.readouterr().out
