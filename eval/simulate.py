@@ -79,6 +79,8 @@ KITTI_IMAGE_SIZE = (1241, 376)
 
 #: Extra path (m) simulated beyond the last frame so landmarks ahead of it exist.
 _LOOKAHEAD_M = 80.0
+#: Landmarks further than this along the path from the car are never looked at (m).
+_WINDOW_M = 150.0
 
 
 @dataclass(frozen=True)
@@ -242,8 +244,9 @@ def integrate_mean_pairing(twists: np.ndarray, dt: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- landmarks
 
 
-def _place_landmarks(config: SimConfig, rng, poses: np.ndarray) -> np.ndarray:
-    """Landmarks (N, 3) along both sides of the path of ``poses``, sorted by arc length."""
+def _place_landmarks(config: SimConfig, rng, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Landmarks (N, 3) along both sides of the path of ``poses``, sorted by the arc length
+    (N,) of the path point they stand beside (returned too)."""
     pos = poses[:, :3, 3]
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
     n = int(round(config.landmark_density * arc[-1]))
@@ -260,13 +263,15 @@ def _place_landmarks(config: SimConfig, rng, poses: np.ndarray) -> np.ndarray:
     side = np.where(rng.random(n) < 0.5, -1.0, 1.0)
     lateral = np.where(far, rng.uniform(20.0, 50.0, n), rng.uniform(4.0, 20.0, n)) * side
     height = np.where(far, rng.uniform(-1.0, 15.0, n), rng.uniform(-1.0, 8.0, n))
-    return base + lateral[:, None] * left + height[:, None] * np.array([0.0, 0.0, 1.0])
+    return base + lateral[:, None] * left + height[:, None] * np.array([0.0, 0.0, 1.0]), s
 
 
 # --------------------------------------------------------------------------- observations
 
 
-def _observe(config: SimConfig, rng_tracks, rng_pixels, poses, points, calib: Calibration):
+def _observe(
+    config: SimConfig, rng_tracks, rng_pixels, poses, points, point_arc, calib: Calibration
+):
     """Run the tracker over the first ``len(poses)`` frames.
 
     Returns rows (frame, track, z) of the observations, the noise-free pixels of those rows,
@@ -284,8 +289,16 @@ def _observe(config: SimConfig, rng_tracks, rng_pixels, poses, points, calib: Ca
     next_id = 0
     rows_f, rows_t, rows_z, rows_z0 = [], [], [], []
     cam_T_world = calib.cam_T_imu @ se3_inv(poses)
+    # Only landmarks placed within _WINDOW_M of path length of the car are looked at (points
+    # are sorted by arc length): this keeps the cost linear in the drive's length. A landmark
+    # outside that window would have to be seen across a loop of the road; it counts as occluded.
+    pos = poses[:, :3, 3]
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
+    lo_all = np.searchsorted(point_arc, arc - _WINDOW_M, side="left")
+    hi_all = np.searchsorted(point_arc, arc + _WINDOW_M, side="right")
     for k in range(poses.shape[0]):
-        q = points @ cam_T_world[k, :3, :3].T + cam_T_world[k, :3, 3]
+        lo, hi = int(lo_all[k]), int(hi_all[k])
+        q = points[lo:hi] @ cam_T_world[k, :3, :3].T + cam_T_world[k, :3, 3]
         depth = q[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             z0 = project(M, homogeneous(q))  # paper eq. 1-3
@@ -298,27 +311,29 @@ def _observe(config: SimConfig, rng_tracks, rng_pixels, poses, points, calib: Ca
             & (z0[:, 1] >= 0)
             & (z0[:, 1] <= height - 1)
         )
-        keep = active & visible & (remaining > 0)
-        ended = active & ~keep
+        was_active = active[lo:hi]
+        keep = was_active & visible & (remaining[lo:hi] > 0)
         p_detect = 1.0 if k == 0 else config.detect_probability
-        start = ~active & ~ended & visible & (rng_tracks.random(n_pts) < p_detect)
-        seen = np.flatnonzero(keep | start)
-        z = z0[seen] + sigma * rng_pixels.standard_normal((seen.size, 4))
+        # A track that ends now cannot restart now (ended tracks were active).
+        start = ~was_active & visible & (rng_tracks.random(hi - lo) < p_detect)
+        local = np.flatnonzero(keep | start)
+        z = z0[local] + sigma * rng_pixels.standard_normal((local.size, 4))
         ok = z[:, 0] - z[:, 2] >= config.min_disparity
-        seen, z = seen[ok], z[ok]
-        is_new = start[seen]
-        new = seen[is_new]
+        local, z = local[ok], z[ok]
+        seen = lo + local
+        new = seen[start[local]]
         track_of[new] = next_id + np.arange(new.size)
         remaining[new] = rng_tracks.geometric(p_len, new.size)
         track_landmark.append(new)
         next_id += new.size
+        # Every track not observed now has ended for good (also any left outside the window).
         active[:] = False
         active[seen] = True
         remaining[seen] -= 1
         rows_f.append(np.full(seen.size, k, dtype=np.int64))
         rows_t.append(track_of[seen])
         rows_z.append(z)
-        rows_z0.append(z0[seen])
+        rows_z0.append(z0[local])
     return (
         np.concatenate(rows_f),
         np.concatenate(rows_t),
@@ -342,13 +357,13 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
     t_all = np.arange(n_all) * dt
     u_all = _instantaneous_twists(config, rng_drive, t_all)
     poses_all = integrate_mean_pairing(u_all, np.full(n_all - 1, dt))
-    points = _place_landmarks(config, rng_landmarks, poses_all)
+    points, point_arc = _place_landmarks(config, rng_landmarks, poses_all)
 
     T = config.n_frames
     poses, u_true, timestamps = poses_all[:T], u_all[:T], t_all[:T]
     calib = Calibration(K=KITTI_K.copy(), baseline=KITTI_BASELINE, cam_T_imu=KITTI_CAM_T_IMU.copy())
     frame, track, z, _, track_landmark = _observe(
-        config, rng_tracks, rng_pixels, poses, points, calib
+        config, rng_tracks, rng_pixels, poses, points, point_arc, calib
     )
 
     noise = np.zeros((T, 6))
