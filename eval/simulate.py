@@ -25,10 +25,12 @@ Measurements
 ------------
 * Velocities: ``u_k + N(0, diag(velocity_sigma^2 I3, gyro_sigma^2 I3))`` plus a constant gyro
   bias on the angular part.
-* Landmarks stand on both sides of the path (lateral offset 4-20 m, height -1..8 m relative to
-  the IMU) plus a share of far points (lateral 20-50 m, height -1..15 m). A landmark is visible
+* Landmarks stand on both sides of the path (lateral offset 4-20 m, 0-10 m above the road,
+  i.e. about -1.7..8.4 m relative to the camera), plus a share of far points (lateral 20-50 m,
+  0-20 m above the road) and a share on the road surface (lateral 1-10 m, 0-0.15 m). The road
+  lies 1.65 m below the left camera (KITTI's camera height), following the path's slope. A landmark is visible
   when its depth in the left camera is 3-60 m and both its projections fall in the 1241x376 px
-  image. A visible landmark without a track starts one with probability ``detect_probability``
+  image, 5 px away from the border. A visible landmark without a track starts one with probability ``detect_probability``
   per frame (every visible landmark at frame 0); the track lasts a geometric number of frames
   (mean ``mean_track_length``) and ends earlier when the landmark leaves the view. A track once
   ended is never observed again; a landmark seen again later gets a new track index, as in the
@@ -74,6 +76,8 @@ KITTI_CAM_T_IMU = np.array(
         [0.0, 0.0, 0.0, 1.0],
     ]
 )
+#: Height of the KITTI left camera above the road (m): sets the road level of the landmarks.
+KITTI_CAMERA_HEIGHT = 1.65
 #: KITTI image size (px).
 KITTI_IMAGE_SIZE = (1241, 376)
 
@@ -81,6 +85,9 @@ KITTI_IMAGE_SIZE = (1241, 376)
 _LOOKAHEAD_M = 80.0
 #: Landmarks further than this along the path from the car are never looked at (m).
 _WINDOW_M = 150.0
+#: Noise-free projections closer than this to the image border are not tracked (px), so that
+#: noisy pixels stay inside the image (and never equal the -1 of "unobserved").
+_BORDER_PX = 5.0
 
 
 @dataclass(frozen=True)
@@ -108,9 +115,12 @@ class SimConfig:
     # Stereo.
     pixel_sigma: float = 1.0
     #: Landmarks per metre of path (both sides together).
-    landmark_density: float = 3.0
+    landmark_density: float = 2.7
     #: Share of landmarks placed far from the road (lateral 20-50 m).
     far_fraction: float = 0.2
+    #: Share of landmarks on the road surface (lateral 1-10 m, up to 0.15 m above the road):
+    #: road markings and kerbs, the lower half of the image.
+    ground_fraction: float = 0.25
     min_depth: float = 3.0
     max_depth: float = 60.0
     min_disparity: float = 0.5
@@ -136,7 +146,12 @@ class SimConfig:
             raise InputError(
                 f"simulation: speed_max {self.speed_max} is below speed_min {self.speed_min}"
             )
-        for key in ("straight_fraction", "far_fraction", "detect_probability"):
+        if self.far_fraction + self.ground_fraction > 1.0:
+            raise InputError(
+                f"simulation: far_fraction + ground_fraction must be <= 1, got "
+                f"{self.far_fraction} + {self.ground_fraction}"
+            )
+        for key in ("straight_fraction", "far_fraction", "ground_fraction", "detect_probability"):
             value = getattr(self, key)
             if not 0.0 <= value <= 1.0:
                 raise InputError(f"simulation: {key} must be in [0, 1], got {value!r}")
@@ -244,9 +259,12 @@ def integrate_mean_pairing(twists: np.ndarray, dt: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- landmarks
 
 
-def _place_landmarks(config: SimConfig, rng, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _place_landmarks(
+    config: SimConfig, rng, poses: np.ndarray, road_z: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Landmarks (N, 3) along both sides of the path of ``poses``, sorted by the arc length
-    (N,) of the path point they stand beside (returned too)."""
+    (N,) of the path point they stand beside (returned too). ``road_z``: height of the road
+    relative to the IMU."""
     pos = poses[:, :3, 3]
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
     n = int(round(config.landmark_density * arc[-1]))
@@ -259,10 +277,21 @@ def _place_landmarks(config: SimConfig, rng, poses: np.ndarray) -> tuple[np.ndar
     forward = (1 - a) * poses[i0, :3, 0] + a * poses[i0 + 1, :3, 0]
     left = np.stack([-forward[:, 1], forward[:, 0], np.zeros(n)], axis=1)
     left /= np.linalg.norm(left, axis=1, keepdims=True)
-    far = rng.random(n) < config.far_fraction
+    kind = rng.random(n)
+    far = kind < config.far_fraction
+    ground = ~far & (kind < config.far_fraction + config.ground_fraction)
     side = np.where(rng.random(n) < 0.5, -1.0, 1.0)
-    lateral = np.where(far, rng.uniform(20.0, 50.0, n), rng.uniform(4.0, 20.0, n)) * side
-    height = np.where(far, rng.uniform(-1.0, 15.0, n), rng.uniform(-1.0, 8.0, n))
+    lateral = np.select(
+        [far, ground],
+        [rng.uniform(20.0, 50.0, n), rng.uniform(1.0, 10.0, n)],
+        rng.uniform(4.0, 20.0, n),
+    ) * side
+    above_road = np.select(
+        [far, ground],
+        [rng.uniform(0.0, 20.0, n), rng.uniform(0.0, 0.15, n)],
+        rng.uniform(0.0, 10.0, n),
+    )
+    height = road_z + above_road
     return base + lateral[:, None] * left + height[:, None] * np.array([0.0, 0.0, 1.0]), s
 
 
@@ -305,11 +334,10 @@ def _observe(
         visible = (
             (depth >= config.min_depth)
             & (depth <= config.max_depth)
-            & (z0[:, 0] >= 0)
-            & (z0[:, 0] <= width - 1)
-            & (z0[:, 2] >= 0)
-            & (z0[:, 1] >= 0)
-            & (z0[:, 1] <= height - 1)
+            & (z0[:, 0] <= width - 1 - _BORDER_PX)
+            & (z0[:, 2] >= _BORDER_PX)
+            & (z0[:, 1] >= _BORDER_PX)
+            & (z0[:, 1] <= height - 1 - _BORDER_PX)
         )
         was_active = active[lo:hi]
         keep = was_active & visible & (remaining[lo:hi] > 0)
@@ -357,7 +385,8 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
     t_all = np.arange(n_all) * dt
     u_all = _instantaneous_twists(config, rng_drive, t_all)
     poses_all = integrate_mean_pairing(u_all, np.full(n_all - 1, dt))
-    points, point_arc = _place_landmarks(config, rng_landmarks, poses_all)
+    road_z = float(se3_inv(KITTI_CAM_T_IMU)[2, 3]) - KITTI_CAMERA_HEIGHT
+    points, point_arc = _place_landmarks(config, rng_landmarks, poses_all, road_z)
 
     T = config.n_frames
     poses, u_true, timestamps = poses_all[:T], u_all[:T], t_all[:T]
