@@ -44,6 +44,12 @@ def json_text(obj) -> str:
     return json.dumps(to_jsonable(obj), indent=2, allow_nan=False) + "\n"
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` through a temporary sibling file and a rename."""
     path = Path(path)
@@ -52,6 +58,7 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual file mode
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -79,6 +86,7 @@ def atomic_dir(final: str | os.PathLike, *, replace: bool = True) -> Iterator[Pa
     tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{final.name}.", suffix=".tmp"))
     try:
         yield tmp
+        _usual_modes(tmp)
         if final.exists() or final.is_symlink():
             if not replace:
                 raise FileExistsError(f"{final} exists")
@@ -92,6 +100,17 @@ def atomic_dir(final: str | os.PathLike, *, replace: bool = True) -> Iterator[Pa
     except BaseException:
         _remove(tmp)
         raise
+
+
+def _usual_modes(root: Path) -> None:
+    """mkdtemp/mkstemp create 0700/0600; give the folder and everything in it the usual modes."""
+    mask = _umask()
+    os.chmod(root, 0o777 & ~mask)
+    for dirpath, dirnames, filenames in os.walk(root):
+        for d in dirnames:
+            os.chmod(os.path.join(dirpath, d), 0o777 & ~mask)
+        for f in filenames:
+            os.chmod(os.path.join(dirpath, f), 0o666 & ~mask)
 
 
 def atomic_symlink(target: str | os.PathLike, link: str | os.PathLike) -> None:
