@@ -25,8 +25,8 @@ from scipy.linalg import cholesky, solve_triangular
 from ekf.config import FilterConfig
 from ekf.errors import EstimationError
 from ekf.estimate import Estimate
-from ekf.geometry import se3_exp
 from ekf.prediction import (
+    se3_exp_single,
     bias_transition,
     predict_mean,
     prediction_jacobian,
@@ -147,7 +147,7 @@ class JointState:
         dx = Y.T @ e  # = K r
         P -= Y.T @ Y  # = P - K S K^T
         self.P = 0.5 * (P + P.T)
-        self.U = se3_exp(dx[:6]) @ self.U  # paper eq. 14: mu <- exp((K r)^) mu
+        self.U = se3_exp_single(dx[:6]) @ self.U  # paper eq. 14: mu <- exp((K r)^) mu
         if self.core == 9:
             self.bias = self.bias + dx[6:9]
         self.lm_mean = self.lm_mean + dx[self.core :].reshape(-1, 3)

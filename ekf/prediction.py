@@ -24,6 +24,8 @@ Public building blocks (also used by ``ekf/invariant.py``):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ekf.errors import InputError
@@ -50,9 +52,31 @@ def paired_velocities(velocities: np.ndarray, pairing: str) -> np.ndarray:
     raise InputError(f"velocity pairing must be 'current', 'next' or 'mean', got {pairing!r}")
 
 
+def se3_exp_single(xi: np.ndarray) -> np.ndarray:
+    """:func:`ekf.geometry.se3_exp` for one twist (6,), without batching overhead (hot loop)."""
+    x = np.asarray(xi, dtype=float)
+    p1, p2, p3 = float(x[3]), float(x[4]), float(x[5])
+    th2 = p1 * p1 + p2 * p2 + p3 * p3
+    if th2 < 1e-10:
+        A, B, C = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        th = math.sqrt(th2)
+        s, c = math.sin(th), math.cos(th)
+        A, B, C = s / th, (1.0 - c) / th2, (th - s) / (th2 * th)
+    W = np.array([[0.0, -p3, p2], [p3, 0.0, -p1], [-p2, p1, 0.0]])
+    W2 = W @ W
+    out = np.eye(4)
+    out[:3, :3] += A * W + B * W2
+    out[:3, 3] = x[:3] + (B * W + C * W2) @ x[:3]
+    return out
+
+
 def motion_increment(tau: float, u: np.ndarray) -> np.ndarray:
     """``exp(-tau u^)`` (4x4, batched over leading axes of ``u``): paper eq. 11."""
-    return se3_exp(-tau * np.asarray(u, dtype=float))
+    u = np.asarray(u, dtype=float)
+    if u.shape == (6,):
+        return se3_exp_single(-tau * u)
+    return se3_exp(-tau * u)
 
 
 def predict_mean(U: np.ndarray, tau: float, u: np.ndarray) -> np.ndarray:
@@ -62,7 +86,7 @@ def predict_mean(U: np.ndarray, tau: float, u: np.ndarray) -> np.ndarray:
 
 def prediction_jacobian(tau: float, u: np.ndarray) -> np.ndarray:
     """Paper eq. 11-12: ``F = exp(-tau curly_hat(u)) = Ad(exp(-tau u^))``, closed form (6x6)."""
-    return adjoint(se3_exp(-tau * np.asarray(u, dtype=float)))
+    return adjoint(motion_increment(tau, u))
 
 
 def process_noise(tau: float, W: np.ndarray) -> np.ndarray:

@@ -1,0 +1,163 @@
+"""The EKF estimators end to end on simulated drives (and, when present, on the shared 0027)."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ekf.config import FilterConfig
+from ekf.estimators import ESTIMATORS
+from ekf.joint import JointState
+from ekf.stereo_update import StereoModel
+from eval.simulate import SimConfig, simulate
+
+CORE_MODES = ["dead-reckoning", "mapping", "ekf-decoupled", "ekf-joint"]
+SLAM_MODES = ["ekf-decoupled", "ekf-joint"]
+BASE = FilterConfig(clean_tracks=False, velocity_pairing="mean")
+
+
+def _ate(est, poses):
+    return float(np.sqrt(np.mean(np.sum((est.positions - poses[:, :3, 3]) ** 2, axis=1))))
+
+
+@pytest.fixture(scope="module")
+def clean_sim():
+    return simulate(SimConfig(seed=3, n_frames=150, noise_free=True))
+
+
+@pytest.fixture(scope="module")
+def noisy_sim():
+    return simulate(SimConfig(seed=4, n_frames=300, gyro_bias=(0.005, -0.005, 0.008)))
+
+
+@pytest.mark.parametrize("mode", CORE_MODES)
+def test_noise_free_recovers_truth(clean_sim, mode):
+    seq = clean_sim.sequence
+    frames = []
+    est = ESTIMATORS[mode](seq, BASE, progress=frames.append)
+    assert frames[-1] == seq.n_frames
+    assert est.estimator == mode
+    assert est.poses.shape == (seq.n_frames, 4, 4)
+    assert np.all(np.isfinite(est.pose_cov))
+    assert _ate(est, clean_sim.poses) < 0.01
+    assert est.step_time_s.shape == (seq.n_frames,) and np.all(est.step_time_s > 0)
+    if mode != "dead-reckoning":
+        has = est.has_landmark
+        assert has.sum() > 0.9 * seq.n_tracks
+        err = np.linalg.norm(est.landmarks[has] - clean_sim.landmarks[has], axis=1)
+        assert np.max(err) < 0.01
+        assert est.n_initialised.sum() == has.sum()
+        assert np.all(np.linalg.eigvalsh(est.landmark_cov[has]) > 0)
+    if mode in SLAM_MODES:
+        assert est.n_updates.sum() > 0
+        assert est.n_rejected.sum() == 0  # noise-free: nothing gated away
+
+
+def test_noisy_slam_beats_dead_reckoning(noisy_sim):
+    seq = noisy_sim.sequence
+    dr = _ate(ESTIMATORS["dead-reckoning"](seq, BASE), noisy_sim.poses)
+    dec = _ate(ESTIMATORS["ekf-decoupled"](seq, BASE), noisy_sim.poses)
+    from ekf.decoupled import run_decoupled
+
+    assert _ate(run_decoupled(seq, BASE, as_written=True), noisy_sim.poses) < dr
+    joint = _ate(ESTIMATORS["ekf-joint"](seq, BASE), noisy_sim.poses)
+    bias = _ate(ESTIMATORS["ekf-joint"](seq, BASE.replace(gyro_bias=True)), noisy_sim.poses)
+    assert dec < dr and joint < dr and bias < dr
+    assert joint < dec
+
+
+def test_marginalisation_is_exact(noisy_sim):
+    """Deleting ended tracks from the state gives the same poses as keeping them (the kept
+    landmarks go on being refined through their correlation with the pose, so only their
+    presence is compared)."""
+    from ekf.sequence import Observations, Sequence
+
+    full = noisy_sim.sequence
+    n = 60
+    a, b = full.obs.frame_ptr[0], full.obs.frame_ptr[n]
+    obs = Observations(full.obs.frame_ptr[: n + 1], full.obs.track[a:b], full.obs.z[a:b])
+    seq = Sequence(
+        name="short",
+        timestamps=full.timestamps[:n],
+        linear_velocity=full.linear_velocity[:n],
+        angular_velocity=full.angular_velocity[:n],
+        obs=obs,
+        n_tracks=full.n_tracks,
+        calibration=full.calibration,
+    )
+    marg = ESTIMATORS["ekf-joint"](seq, BASE)
+    kept = ESTIMATORS["ekf-joint"](seq, BASE.replace(keep_landmarks=True))
+    np.testing.assert_allclose(marg.poses, kept.poses, atol=1e-9)
+    np.testing.assert_allclose(marg.pose_cov, kept.pose_cov, atol=1e-12)
+    has = marg.has_landmark
+    np.testing.assert_array_equal(has, kept.has_landmark)
+    # Refinement after a track ends can only shrink a landmark's covariance.
+    shrink = np.trace(kept.landmark_cov[has], axis1=1, axis2=2)
+    assert np.all(shrink <= np.trace(marg.landmark_cov[has], axis1=1, axis2=2) * (1 + 1e-9))
+    assert kept.info["max_state_dim"] > marg.info["max_state_dim"]
+
+
+def test_joint_update_matches_dense_kalman_reference(noisy_sim):
+    """The structured stacked update equals the textbook dense Joseph-form update."""
+    seq = noisy_sim.sequence
+    cfg = BASE.replace(gate_probability=None)
+    model = StereoModel.from_config(seq.calibration, cfg)
+    st = JointState(cfg, seq.n_tracks)
+    tracks, z = seq.frame(0)
+    st.initialise(model, tracks, z, np.zeros(tracks.size, dtype=bool))
+    st.predict(0.1, seq.velocities[0] + [0.05, 0.02, 0, 0.001, 0, 0.002], cfg)
+    tracks1, z1 = seq.frame(1)
+    tracks1 = tracks1[st.slot[tracks1] >= 0][:15]
+    z1 = seq.frame(1)[1][np.isin(seq.frame(1)[0], tracks1)]
+    U0, m0, P0 = st.U.copy(), st.lm_mean.copy(), st.P.copy()
+    # Dense reference with the 4-row model.
+    slots = st.slot[tracks1]
+    q = model.camera_points(U0, m0[slots])
+    Hp, Hm = model.jacobians(U0, m0[slots], q, reduced=False)
+    N = P0.shape[0]
+    H = np.zeros((4 * slots.size, N))
+    for i, s in enumerate(slots):
+        H[4 * i : 4 * i + 4, :6] = Hp[i]
+        H[4 * i : 4 * i + 4, 6 + 3 * s : 9 + 3 * s] = Hm[i]
+    V = np.kron(np.eye(slots.size), model.V)
+    S = H @ P0 @ H.T + V
+    Kg = P0 @ H.T @ np.linalg.inv(S)
+    r = (z1 - model.predicted_pixels(q)).ravel()
+    IKH = np.eye(N) - Kg @ H
+    P_ref = IKH @ P0 @ IKH.T + Kg @ V @ Kg.T
+    dx_ref = Kg @ r
+    n_acc, n_rej = st.update(model, tracks1, z1)
+    assert (n_acc, n_rej) == (slots.size, 0)
+    np.testing.assert_allclose(st.P, P_ref, atol=1e-10, rtol=1e-7)
+    np.testing.assert_allclose(st.lm_mean - m0, dx_ref[6:].reshape(-1, 3), atol=1e-9)
+
+
+def _data_dir():
+    return Path(os.environ.get("VISLAM_DATA", "/work/shared/data/kitti-pr3"))
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_0027_slam_beats_dead_reckoning():
+    path = _data_dir() / "0027.npz"
+    gt_path = _data_dir() / "groundtruth" / "0027.txt"
+    if not (path.exists() and gt_path.exists()):
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"shared data missing: {path}")
+        pytest.skip(f"shared data not found at {path}")
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from ekf_accuracy import ate, load_groundtruth, load_sequence
+
+    seq = load_sequence(path)
+    gt = load_groundtruth(gt_path, seq.calibration.cam_T_imu)
+    n = gt.shape[0]
+    results = {}
+    for mode in ["dead-reckoning", "ekf-decoupled", "ekf-joint"]:
+        est = ESTIMATORS[mode](seq, FilterConfig())
+        results[mode] = ate(est.positions[:n], gt[:, :3, 3])[1]
+    assert results["dead-reckoning"] == pytest.approx(16.4, abs=0.5)
+    assert results["ekf-decoupled"] < results["dead-reckoning"]
+    assert results["ekf-joint"] < results["dead-reckoning"]
