@@ -1,0 +1,243 @@
+"""Building the smoother's factor graph from a :class:`ekf.sequence.Sequence`.
+
+Variables: ``X(k)`` a ``Pose3`` per time step (``world_T_imu``, world = IMU at step 0) and
+``L(j)`` a ``Point3`` per track j with at least two usable observations.
+
+Factors:
+
+* motion: ``BetweenFactorPose3(X(k), X(k+1), exp(tau u))`` with the body twist ``u`` of the
+  interval (paper eq. 11, written for the pose instead of its inverse). A twist error ``w`` with
+  covariance ``W`` gives ``exp(tau (u + w)) ~= exp(tau u) exp(J_r(tau u) tau w)``, so the
+  relative-pose noise in GTSAM's rotation-first right perturbation is
+  ``tau^2 J_r W_g J_r^T`` with ``W_g`` the permuted ``W`` and ``J_r`` ``Pose3.ExpmapDerivative``.
+* vision: ``GenericStereoFactor3D(StereoPoint2(uL, uR, v), noise, X(k), L(j), K, imu_T_cam)``,
+  the stereo model of paper eq. 1-3 with ``v`` the mean of vL and vR (they carry the same
+  information, DESIGN.md), so its sigma is ``pixel_sigma / sqrt(2)``; robust (Huber).
+* a prior on ``X(0)`` at the identity, and a weak prior on every landmark.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from ekf.camera import triangulate_with_jacobian
+from ekf.config import FilterConfig
+from ekf.conventions import estimate_cov_to_gtsam
+from ekf.geometry import se3_exp, se3_inv
+from ekf.sequence import Calibration, Sequence
+from graph.pose_conversions import L, X, expmap_right_jacobian, to_pose3, twist_to_gtsam
+from graph.settings import SmootherSettings
+
+
+# --- motion ---------------------------------------------------------------------------------
+def interval_twists(seq: Sequence, pairing: str) -> tuple[np.ndarray, np.ndarray]:
+    """Body twists ``u`` (T-1, 6) (translation first) and lengths ``tau`` (T-1,) per interval.
+
+    ``pairing``: ``"current"`` u_k covers [k, k+1] (the paper), ``"next"`` u_{k+1}, ``"mean"``
+    the mean of the two.
+    """
+    u = seq.velocities
+    if pairing == "current":
+        twist = u[:-1]
+    elif pairing == "next":
+        twist = u[1:]
+    elif pairing == "mean":
+        twist = 0.5 * (u[:-1] + u[1:])
+    else:  # FilterConfig validates this already
+        raise ValueError(f"unknown velocity pairing {pairing!r}")
+    return twist, seq.dt
+
+
+def relative_motions(seq: Sequence, config: FilterConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Relative poses ``exp(tau u)`` (T-1, 4, 4) and their covariances (T-1, 6, 6) in GTSAM's
+    rotation-first right perturbation (see the module docstring)."""
+    twist, tau = interval_twists(seq, config.velocity_pairing)
+    xi = tau[:, None] * twist
+    deltas = se3_exp(xi)
+    W_g = estimate_cov_to_gtsam(config.velocity_cov)
+    xi_g = twist_to_gtsam(xi)
+    covs = np.empty((len(tau), 6, 6))
+    for k in range(len(tau)):
+        J = expmap_right_jacobian(xi_g[k])
+        covs[k] = tau[k] ** 2 * (J @ W_g @ J.T)
+    # a zero-length interval would give a singular covariance: keep it barely positive
+    covs += 1e-12 * np.eye(6)
+    return deltas, covs
+
+
+def dead_reckoning(seq: Sequence, config: FilterConfig) -> np.ndarray:
+    """Integrated poses ``world_T_imu`` (T, 4, 4), identity at step 0."""
+    deltas, _ = relative_motions(seq, config)
+    poses = np.empty((seq.n_frames, 4, 4))
+    poses[0] = np.eye(4)
+    for k, delta in enumerate(deltas):
+        poses[k + 1] = poses[k] @ delta
+    return poses
+
+
+# --- vision ---------------------------------------------------------------------------------
+@dataclass
+class StereoRows:
+    """Stereo observations in use: frame (N,), track (N,), pixels z (N, 4) [uL, vL, uR, vR]."""
+
+    frame: np.ndarray
+    track: np.ndarray
+    z: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.frame.size)
+
+    def subset(self, keep: np.ndarray) -> "StereoRows":
+        return StereoRows(self.frame[keep], self.track[keep], self.z[keep])
+
+    @property
+    def measured(self) -> np.ndarray:
+        """GTSAM's stereo measurement ``[uL, uR, v]`` (N, 3), ``v`` the mean of vL and vR."""
+        return np.stack([self.z[:, 0], self.z[:, 2], 0.5 * (self.z[:, 1] + self.z[:, 3])], axis=1)
+
+
+def usable_rows(seq: Sequence, min_disparity: float) -> tuple[StereoRows, np.ndarray]:
+    """Observations with disparity ``uL - uR`` above ``min_disparity`` (and above 0), and the
+    number rejected per frame (T,)."""
+    frame = seq.obs.frame_index
+    z = seq.obs.z
+    disparity = z[:, 0] - z[:, 2]
+    ok = np.isfinite(z).all(axis=1) & (disparity > max(min_disparity, 1e-6))
+    rejected = np.bincount(frame[~ok], minlength=seq.n_frames)
+    return StereoRows(frame[ok], seq.obs.track[ok], z[ok]), rejected
+
+
+def keep_multi_observed(rows: StereoRows, n_tracks: int, minimum: int = 2) -> np.ndarray:
+    """Boolean (N,): the row's track has at least ``minimum`` rows."""
+    counts = np.bincount(rows.track, minlength=n_tracks)
+    return counts[rows.track] >= minimum
+
+
+def camera_points(poses: np.ndarray, landmarks: np.ndarray, calib: Calibration,
+                  rows: StereoRows) -> np.ndarray:
+    """Landmark of each row in the left camera of its frame (N, 3)."""
+    cam_T_world = calib.cam_T_imu @ se3_inv(poses[rows.frame])
+    p = landmarks[rows.track]
+    return np.einsum("nij,nj->ni", cam_T_world[:, :3, :3], p) + cam_T_world[:, :3, 3]
+
+
+def stereo_residuals(poses: np.ndarray, landmarks: np.ndarray, calib: Calibration,
+                     rows: StereoRows) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals ``[uL, uR, v]`` measured minus predicted (N, 3) and depths (N,)."""
+    q = camera_points(poses, landmarks, calib, rows)
+    depth = q[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x, y = q[:, 0] / depth, q[:, 1] / depth
+        uL = calib.fsu * x + calib.cu
+        uR = calib.fsu * (x - calib.baseline / depth) + calib.cu
+        v = calib.fsv * y + calib.cv
+    predicted = np.stack([uL, uR, v], axis=1)
+    return rows.measured - predicted, depth
+
+
+def triangulate_landmarks(poses: np.ndarray, calib: Calibration, rows: StereoRows,
+                          n_tracks: int) -> np.ndarray:
+    """World position (n_tracks, 3) of each track from its largest-disparity observation
+    (the best-conditioned depth), NaN for tracks without rows."""
+    disparity = rows.z[:, 0] - rows.z[:, 2]
+    order = np.lexsort((-disparity, rows.track))  # by track, largest disparity first
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = rows.track[order][1:] != rows.track[order][:-1]
+    best = order[first]
+    p_cam, _ = triangulate_with_jacobian(rows.z[best], calib.K, calib.baseline)
+    world_T_cam = poses[rows.frame[best]] @ calib.imu_T_cam
+    out = np.full((n_tracks, 3), np.nan)
+    out[rows.track[best]] = np.einsum("nij,nj->ni", world_T_cam[:, :3, :3], p_cam) + world_T_cam[:, :3, 3]
+    return out
+
+
+def cheirality_ok(poses: np.ndarray, landmarks: np.ndarray, calib: Calibration, rows: StereoRows,
+                  n_tracks: int, min_depth: float) -> np.ndarray:
+    """Boolean (n_tracks,): the landmark lies at least ``min_depth`` in front of every camera
+    that observes it (False for tracks without rows or landmark)."""
+    q = camera_points(poses, landmarks, calib, rows)
+    bad = ~(q[:, 2] >= min_depth)
+    bad_tracks = np.bincount(rows.track[bad], minlength=n_tracks) > 0
+    has = np.bincount(rows.track, minlength=n_tracks) > 0
+    return has & ~bad_tracks & np.all(np.isfinite(landmarks), axis=1)
+
+
+# --- the graph ------------------------------------------------------------------------------
+@dataclass
+class NoiseModels:
+    """The GTSAM noise models shared by the batch and incremental smoothers."""
+
+    calibration: gtsam.Cal3_S2Stereo
+    body_P_sensor: gtsam.Pose3
+    stereo: gtsam.noiseModel.Base
+    landmark_prior: gtsam.noiseModel.Base
+    pose_prior: gtsam.noiseModel.Base
+    motion: list = field(default_factory=list)  # one per interval
+
+    @classmethod
+    def create(cls, seq: Sequence, config: FilterConfig, settings: SmootherSettings,
+               motion_covs: np.ndarray) -> "NoiseModels":
+        c = seq.calibration
+        sigma = config.pixel_sigma
+        base = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma, sigma, sigma / np.sqrt(2.0)]))
+        stereo = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(settings.huber_k), base)
+        return cls(
+            calibration=gtsam.Cal3_S2Stereo(c.fsu, c.fsv, 0.0, c.cu, c.cv, c.baseline),
+            body_P_sensor=to_pose3(c.imu_T_cam),
+            stereo=stereo,
+            landmark_prior=gtsam.noiseModel.Isotropic.Sigma(3, settings.landmark_prior_sigma),
+            pose_prior=gtsam.noiseModel.Gaussian.Covariance(estimate_cov_to_gtsam(config.initial_pose_cov)),
+            motion=[gtsam.noiseModel.Gaussian.Covariance(cov) for cov in motion_covs],
+        )
+
+    def stereo_factor(self, measured: np.ndarray, frame: int, track: int) -> gtsam.GenericStereoFactor3D:
+        return gtsam.GenericStereoFactor3D(
+            gtsam.StereoPoint2(float(measured[0]), float(measured[1]), float(measured[2])),
+            self.stereo, X(int(frame)), L(int(track)), self.calibration, self.body_P_sensor,
+        )
+
+
+@dataclass
+class GraphProblem:
+    """A built graph, its initial values and what its factors stand for."""
+
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    rows: StereoRows  # the stereo factors, in graph order after the motion factors
+    landmark_tracks: np.ndarray  # tracks that have a landmark variable
+
+
+def build_graph(poses: np.ndarray, landmarks: np.ndarray, rows: StereoRows,
+                deltas: np.ndarray, noise: NoiseModels) -> GraphProblem:
+    """The full batch graph: prior, motion, stereo and landmark-prior factors, with initial
+    values ``poses`` (T, 4, 4) and ``landmarks`` (n_tracks, 3) (only the tracks in ``rows``)."""
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), noise.pose_prior))
+    for k, delta in enumerate(deltas):
+        graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), to_pose3(delta), noise.motion[k]))
+    for k, T in enumerate(poses):
+        values.insert(X(k), to_pose3(T))
+    measured = rows.measured
+    for i in range(len(rows)):
+        graph.add(noise.stereo_factor(measured[i], rows.frame[i], rows.track[i]))
+    tracks = np.unique(rows.track)
+    for j in tracks:
+        p = landmarks[j]
+        values.insert(L(int(j)), p)
+        graph.add(gtsam.PriorFactorPoint3(L(int(j)), p, noise.landmark_prior))
+    return GraphProblem(graph, values, rows, tracks)
+
+
+def poses_from_values(values: gtsam.Values, n_frames: int) -> np.ndarray:
+    return np.stack([values.atPose3(X(k)).matrix() for k in range(n_frames)])
+
+
+def landmarks_from_values(values: gtsam.Values, tracks: np.ndarray, n_tracks: int) -> np.ndarray:
+    out = np.full((n_tracks, 3), np.nan)
+    for j in tracks:
+        out[j] = values.atPoint3(L(int(j)))
+    return out

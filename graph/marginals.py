@@ -1,0 +1,195 @@
+"""Marginal covariances of a solved graph, in the :class:`ekf.estimate.Estimate` convention.
+
+``gtsam.Marginals`` answers one key at a time through the Bayes tree; on a drive-long pose
+chain that costs milliseconds per key (about 10 s for a 300-frame simulated drive, tens of
+seconds on the shared drives). :func:`schur_marginals` computes the same numbers from GTSAM's
+own linearisation at the solution (robust weights included):
+
+1. the whitened sparse Jacobian ``A`` of ``graph.linearize(values)``, information ``H = A^T A``;
+2. landmarks eliminated in closed form (their blocks are 3x3 and independent), leaving the
+   reduced pose system ``S = H_pp - H_pl H_ll^-1 H_lp``; ``S`` is block-banded because a
+   landmark only couples the poses of its track;
+3. a banded Cholesky ``S = L L^T`` and the block Takahashi recursion for the entries of
+   ``S^-1`` inside the band, from the last pose backwards:
+   ``Sigma_sj = -Sigma_ss L_sj L_jj^-1``, ``Sigma_jj = L_jj^-T L_jj^-1 - Sigma_sj^T L_sj L_jj^-1``;
+4. each landmark's covariance ``A_l + B Sigma_pp B^T`` with ``A_l = H_ll^-1``,
+   ``B = -H_ll^-1 H_lp``, over the poses of its track (all inside the band).
+
+GTSAM returns the ``Pose3`` marginal in its rotation-first right perturbation; the Estimate
+stores the translation-first right perturbation, so each pose block goes through
+:func:`ekf.conventions.gtsam_cov_to_estimate` (the one tested conversion). Landmark marginals are
+world-frame ``Point3`` covariances in both.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+from threadpoolctl import threadpool_limits
+
+from ekf.conventions import gtsam_cov_to_estimate
+from ekf.errors import EstimationError
+from graph.pose_conversions import L, X, estimation_error, key_name
+
+
+def _information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
+                 tracks: np.ndarray) -> tuple[sp.csr_matrix, int]:
+    """Information matrix (sparse) with columns ordered [landmarks of ``tracks`` (sorted), poses]."""
+    try:
+        linear = graph.linearize(values)
+    except RuntimeError as exc:
+        raise estimation_error(exc, "linearising for marginal covariances") from None
+    triplets = linear.sparseJacobian_()
+    rows = triplets[0].astype(np.int64) - 1
+    cols = triplets[1].astype(np.int64) - 1
+    n_l = 3 * len(tracks)
+    n = n_l + 6 * n_frames
+    # sparseJacobian_ orders columns by sorted key: 'l' keys (by index) before 'x' keys; the
+    # extra last column is the right-hand side b.
+    expected = [L(int(j)) for j in np.sort(tracks)] + [X(k) for k in range(n_frames)]
+    if sorted(linear.keyVector()) != sorted(expected) or sorted(expected) != expected:
+        raise EstimationError("marginals: the graph's variables are not the expected poses and landmarks")
+    keep = cols < n
+    A = sp.csr_matrix((triplets[2][keep], (rows[keep], cols[keep])), shape=(int(rows.max()) + 1, n))
+    return (A.T @ A).tocsr(), n_l
+
+
+def schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
+                    tracks: np.ndarray, n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pose covariances (T, 6, 6) in the Estimate convention and landmark covariances
+    (n_tracks, 3, 3) (NaN for tracks not in ``tracks``); see the module docstring.
+
+    Raises :class:`ekf.errors.EstimationError` naming the variable when the information
+    matrix is not positive definite there. BLAS is pinned to one thread: the recursion works
+    on small blocks, where multi-threaded OpenBLAS is many times slower (DESIGN.md)."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _schur_marginals(graph, values, n_frames, tracks, n_tracks)
+
+
+def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
+                    tracks: np.ndarray, n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+    tracks = np.sort(np.asarray(tracks, dtype=np.int64))
+    H, n_l = _information(graph, values, n_frames, tracks)
+    n_lm = len(tracks)
+    # --- landmark blocks, inverted in closed form ------------------------------------------
+    b = np.arange(n_lm)
+    r = (3 * b[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
+    c = np.swapaxes(r, 1, 2)
+    H_ll = np.asarray(H[r.ravel(), c.ravel()]).reshape(n_lm, 3, 3) if n_lm else np.zeros((0, 3, 3))
+    eig_min = np.linalg.eigvalsh(H_ll)[:, 0] if n_lm else np.zeros(0)
+    bad = np.flatnonzero(~(eig_min > 1e-12 * np.maximum(1.0, np.abs(H_ll).max(axis=(1, 2)))))
+    if bad.size:
+        raise EstimationError(
+            f"marginals: {key_name(L(int(tracks[bad[0]])))} is not determined by its factors "
+            f"(information matrix singular)")
+    A_l = np.linalg.inv(H_ll)
+    H_lp = H[:n_l, n_l:].tocsr()
+    H_pp = H[n_l:, n_l:]
+    A_blocks = sp.block_diag(list(A_l), format="csr") if n_lm else sp.csr_matrix((0, 0))
+    S = (H_pp - H_lp.T @ (A_blocks @ H_lp)).tocoo() if n_lm else H_pp.tocoo()
+    # --- banded Cholesky of the reduced pose system ---------------------------------------
+    n = 6 * n_frames
+    wp = int(np.max(np.abs(S.row // 6 - S.col // 6))) if S.nnz else 0  # band in poses
+    w = 6 * wp + 5
+    lower = S.row >= S.col
+    ab = np.zeros((w + 1, n))
+    ab[S.row[lower] - S.col[lower], S.col[lower]] += S.data[lower]
+    try:
+        Lb = scipy.linalg.cholesky_banded(ab, lower=True, check_finite=True)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        text = str(exc)
+        digits = [int(t) for t in text.replace(".", " ").split() if t.isdigit()]
+        where = f" near {key_name(X((digits[0] - 1) // 6))}" if digits else ""
+        raise EstimationError(
+            f"marginals: the pose information matrix is not positive definite{where} "
+            f"(an under-constrained pose)") from None
+
+    def L_block(rows: np.ndarray, j0: int) -> np.ndarray:
+        """Dense L[rows, j0:j0+6] from the banded factor."""
+        cols = j0 + np.arange(6)
+        d = rows[:, None] - cols[None, :]
+        ok = (d >= 0) & (d <= w)
+        out = np.zeros(d.shape)
+        out[ok] = Lb[d[ok], np.broadcast_to(cols, d.shape)[ok]]
+        return out
+
+    # landmarks grouped by the first pose they touch
+    H_lp_csr = H_lp
+    first_pose = np.full(n_lm, n_frames, dtype=np.int64)
+    for i in range(n_lm):
+        cols = H_lp_csr.indices[H_lp_csr.indptr[3 * i]:H_lp_csr.indptr[3 * i + 3]]
+        if cols.size:
+            first_pose[i] = cols.min() // 6
+    by_first = [[] for _ in range(n_frames + 1)]
+    for i, p in enumerate(first_pose):
+        by_first[p].append(i)
+
+    K = 6 * (wp + 1)
+    window = np.zeros((K, K))  # Sigma over entries [6p, 6p + K)
+    pose_cov = np.empty((n_frames, 6, 6))
+    landmark_cov = np.full((n_tracks, 3, 3), np.nan)
+    for i in by_first[n_frames]:  # landmarks with no pose factor
+        landmark_cov[tracks[i]] = A_l[i]
+    for p in range(n_frames - 1, -1, -1):
+        j0 = 6 * p
+        m = min(K - 6, n - j0 - 6)  # rows of the band below this block
+        L_jj = L_block(j0 + np.arange(6), j0)
+        L_jj_inv = np.linalg.inv(L_jj)
+        new = np.zeros((K, K))
+        if m > 0:
+            L_sj = L_block(j0 + 6 + np.arange(m), j0)
+            S_ss = window[:m, :m]
+            S_sj = -(S_ss @ L_sj) @ L_jj_inv
+            S_jj = L_jj_inv.T @ L_jj_inv - S_sj.T @ L_sj @ L_jj_inv
+            new[6:6 + m, 6:6 + m] = S_ss
+            new[6:6 + m, :6] = S_sj
+            new[:6, 6:6 + m] = S_sj.T
+        else:
+            S_jj = L_jj_inv.T @ L_jj_inv
+        new[:6, :6] = 0.5 * (S_jj + S_jj.T)
+        window = new
+        pose_cov[p] = new[:6, :6]
+        for i in by_first[p]:
+            a, z = H_lp_csr.indptr[3 * i], H_lp_csr.indptr[3 * i + 3]
+            rows = np.repeat(np.arange(3), np.diff(H_lp_csr.indptr[3 * i:3 * i + 4]))
+            cols = H_lp_csr.indices[a:z] - j0
+            if cols.max() >= K:
+                raise EstimationError(f"marginals: internal band error at {key_name(L(int(tracks[i])))}")
+            H_row = np.zeros((3, K))
+            np.add.at(H_row, (rows, cols), H_lp_csr.data[a:z])
+            B = -A_l[i] @ H_row
+            cov = A_l[i] + B @ new @ B.T
+            landmark_cov[tracks[i]] = 0.5 * (cov + cov.T)
+    return gtsam_cov_to_estimate(pose_cov), landmark_cov
+
+
+def batch_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
+                    tracks: np.ndarray, n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pose (Estimate convention) and landmark marginal covariances of a solved graph."""
+    return schur_marginals(graph, values, n_frames, tracks, n_tracks)
+
+
+def gtsam_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
+                    tracks: np.ndarray, n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+    """The same figures from ``gtsam.Marginals`` key by key (slow; the reference in tests)."""
+    try:
+        marginals = gtsam.Marginals(graph, values)
+        pose_cov = np.stack([marginals.marginalCovariance(X(k)) for k in range(n_frames)])
+        landmark_cov = np.full((n_tracks, 3, 3), np.nan)
+        for j in tracks:
+            landmark_cov[j] = marginals.marginalCovariance(L(int(j)))
+    except RuntimeError as exc:
+        raise estimation_error(exc, "computing marginal covariances") from None
+    return gtsam_cov_to_estimate(pose_cov), landmark_cov
+
+
+def isam2_marginals(isam: gtsam.ISAM2, n_frames: int, tracks: np.ndarray,
+                    n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+    """As :func:`batch_marginals`, for the factors and estimate held by an iSAM2 solver."""
+    try:
+        values = isam.calculateEstimate()
+    except RuntimeError as exc:
+        raise estimation_error(exc, "computing the iSAM2 estimate") from None
+    return schur_marginals(isam.getFactorsUnsafe(), values, n_frames, tracks, n_tracks)

@@ -1,0 +1,70 @@
+"""Settings of the GTSAM smoother that are not part of the shared noise model.
+
+The noise model itself (pixel, velocity and gyro sigmas, velocity pairing, track cleaning,
+minimum disparity) comes from :class:`ekf.config.FilterConfig`, so the EKF and the smoother are
+always compared under the same assumptions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from ekf.errors import InputError
+
+#: Where the batch smoother's initial trajectory comes from.
+INITIALISERS = ("ekf", "dead-reckoning", "isam2")
+
+
+@dataclass(frozen=True)
+class SmootherSettings:
+    """Robust kernel, stopping rule, outlier rejection and regularisation of the smoother."""
+
+    #: Huber threshold in whitened units (multiples of the pixel sigma).
+    huber_k: float = 1.345
+    #: Levenberg-Marquardt stopping rule.
+    max_iterations: int = 100
+    relative_error_tol: float = 1e-5
+    absolute_error_tol: float = 1e-6
+    #: After the first solve, stereo factors whose residual norm ([uL, uR, v], pixels) exceeds
+    #: this are removed and the graph is solved again (``rejection_rounds`` times at most).
+    outlier_threshold_px: float = 4.0
+    rejection_rounds: int = 1
+    #: Weak prior (m) on every landmark, centred on its initial triangulation: it keeps the
+    #: system determinate for marginals (a prototype's Marginals threw on 0034 without it).
+    landmark_prior_sigma: float = 100.0
+    #: Cheirality margin: a landmark closer than this (m) to, or behind, any of its cameras is
+    #: dropped (GTSAM's stereo factor returns a constant residual with a zero Jacobian there).
+    min_depth: float = 0.1
+    #: Compute the pose and landmark marginal covariances.
+    compute_marginals: bool = True
+    #: iSAM2 relinearisation threshold and skip.
+    isam2_relinearize_threshold: float = 0.05
+    isam2_relinearize_skip: int = 1
+
+    def __post_init__(self) -> None:
+        positive = ("huber_k", "outlier_threshold_px", "landmark_prior_sigma", "min_depth",
+                    "relative_error_tol", "isam2_relinearize_threshold")
+        for name in positive:
+            value = getattr(self, name)
+            if not np.isfinite(value) or value <= 0:
+                raise InputError(f"smoother setting {name!r} must be a positive number, got {value!r}")
+        for name in ("max_iterations", "isam2_relinearize_skip"):
+            if int(getattr(self, name)) < 1:
+                raise InputError(f"smoother setting {name!r} must be >= 1, got {getattr(self, name)!r}")
+        if int(self.rejection_rounds) < 0:
+            raise InputError(f"smoother setting 'rejection_rounds' must be >= 0, got {self.rejection_rounds!r}")
+        if self.absolute_error_tol < 0:
+            raise InputError(f"smoother setting 'absolute_error_tol' must be >= 0, got {self.absolute_error_tol!r}")
+
+    def replace(self, **changes) -> "SmootherSettings":
+        known = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(changes) - known)
+        if unknown:
+            raise InputError(f"unknown smoother setting(s): {', '.join(unknown)}")
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)

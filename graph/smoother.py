@@ -1,0 +1,225 @@
+"""The batch smoother: Levenberg-Marquardt over the whole drive (the reference for the EKF).
+
+Steps, each timed (``est.info["timing"]``):
+
+1. *initialise*: a trajectory (the EKF's estimate by default, dead reckoning or iSAM2 on
+   request; LM from dead reckoning converges badly on the shared drives), landmarks triangulated
+   from each track's largest-disparity observation, and tracks behind any of their cameras
+   dropped (GTSAM's stereo factor fails silently there: constant residual, zero Jacobian).
+2. *build* the graph (:mod:`graph.factors`).
+3. *optimise* with LM; then remove stereo factors whose residual exceeds
+   ``settings.outlier_threshold_px`` (or whose point went behind the camera), and solve again.
+4. *marginals*: pose and landmark covariances, converted to the Estimate convention.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Callable
+
+import gtsam
+import numpy as np
+
+from ekf.config import FilterConfig
+from ekf.errors import EstimationError, InputError
+from ekf.estimate import Estimate
+from ekf.sequence import Sequence
+from graph.factors import (
+    GraphProblem,
+    NoiseModels,
+    StereoRows,
+    build_graph,
+    cheirality_ok,
+    dead_reckoning,
+    keep_multi_observed,
+    landmarks_from_values,
+    poses_from_values,
+    relative_motions,
+    stereo_residuals,
+    triangulate_landmarks,
+    usable_rows,
+)
+from graph.inputs import prepare_sequence
+from graph.marginals import batch_marginals
+from graph.pose_conversions import estimation_error
+from graph.settings import INITIALISERS, SmootherSettings
+
+log = logging.getLogger(__name__)
+
+#: The EKF variants tried, in order, for the default initialisation.
+EKF_INITIALISERS = ("ekf-invariant", "ekf-joint")
+
+Progress = Callable[[int, int], None]
+
+
+def ekf_trajectory(seq: Sequence, config: FilterConfig) -> tuple[np.ndarray | None, str]:
+    """Poses from the best EKF available (``ekf.estimators.ESTIMATORS``), or None."""
+    try:
+        from ekf.estimators import ESTIMATORS
+    except ImportError:
+        return None, "ekf.estimators not available"
+    for name in EKF_INITIALISERS:
+        if name in ESTIMATORS:
+            est = ESTIMATORS[name](seq, config, None)
+            return np.asarray(est.poses, dtype=float), name
+    return None, f"none of {EKF_INITIALISERS} registered"
+
+
+def initial_trajectory(seq: Sequence, cleaned: Sequence, config: FilterConfig, init: str,
+                       initial: Estimate | None, settings: SmootherSettings) -> tuple[np.ndarray, str]:
+    """The trajectory LM starts from and a word on where it came from."""
+    if initial is not None:
+        poses = np.asarray(initial.poses, dtype=float)
+        if poses.shape != (seq.n_frames, 4, 4) or not np.all(np.isfinite(poses)):
+            raise InputError(
+                f"initial estimate: poses must be finite with shape ({seq.n_frames}, 4, 4), "
+                f"got {poses.shape}")
+        return poses, f"given ({initial.estimator})"
+    if init not in INITIALISERS:
+        raise InputError(f"smoother init must be one of {INITIALISERS}, got {init!r}")
+    if init == "ekf":
+        poses, source = ekf_trajectory(seq, config)
+        if poses is not None:
+            return poses, source
+        log.warning("smoother: no EKF to initialise from (%s); using dead reckoning", source)
+        return dead_reckoning(cleaned, config), "dead-reckoning (EKF unavailable)"
+    if init == "isam2":
+        from graph.isam2 import isam2_solve
+
+        return isam2_solve(cleaned, config, settings).poses, "isam2"
+    return dead_reckoning(cleaned, config), "dead-reckoning"
+
+
+def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings) -> tuple[gtsam.Values, int, float, float]:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(settings.max_iterations))
+    params.setRelativeErrorTol(settings.relative_error_tol)
+    params.setAbsoluteErrorTol(settings.absolute_error_tol)
+    try:
+        optimizer = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, params)
+        initial_error = problem.graph.error(problem.values)
+        result = optimizer.optimize()
+    except RuntimeError as exc:
+        raise estimation_error(exc, "optimising") from None
+    final_error = problem.graph.error(result)
+    if not np.isfinite(final_error):
+        raise EstimationError("smoother failed while optimising: the error is not finite "
+                              "(a non-finite measurement or initial value)")
+    return result, int(optimizer.iterations()), float(initial_error), final_error
+
+
+def run_smoother(
+    seq: Sequence,
+    config: FilterConfig = FilterConfig(),
+    *,
+    init: str = "ekf",
+    initial: Estimate | None = None,
+    settings: SmootherSettings = SmootherSettings(),
+    progress: Progress | None = None,
+) -> Estimate:
+    """Batch Levenberg-Marquardt smoother over the whole sequence (estimator ``smoother``).
+
+    ``init``: ``"ekf"`` (default; falls back to dead reckoning with a warning when no EKF is
+    registered), ``"dead-reckoning"`` or ``"isam2"``; ``initial`` an estimate whose poses to
+    start from instead. ``progress(done, total)`` is called after each stage (4 in all).
+    Landmarks are indexed by the tracks of the cleaned sequence (``info["track_origin"]`` maps
+    them to the source file's columns).
+    """
+    timing = {"build_s": 0.0, "initialise_s": 0.0, "optimise_s": 0.0, "marginals_s": 0.0}
+    report = progress or (lambda done, total: None)
+    start = time.perf_counter()
+
+    cleaned, cleaning = prepare_sequence(seq, config)
+    T, M, calib = cleaned.n_frames, cleaned.n_tracks, cleaned.calibration
+    deltas, motion_covs = relative_motions(cleaned, config)
+    rows, rejected_disparity = usable_rows(cleaned, config.min_disparity)
+    rejected = rejected_disparity.astype(np.int64)
+    tick = time.perf_counter()
+    timing["build_s"] += tick - start
+
+    poses0, source = initial_trajectory(seq, cleaned, config, init, initial, settings)
+    multi = keep_multi_observed(rows, M)
+    rejected += np.bincount(rows.frame[~multi], minlength=T)
+    rows = rows.subset(multi)
+    landmarks0 = triangulate_landmarks(poses0, calib, rows, M)
+    in_front = cheirality_ok(poses0, landmarks0, calib, rows, M, settings.min_depth)
+    n_cheirality = int(np.sum(~in_front & (np.bincount(rows.track, minlength=M) > 0)))
+    keep = in_front[rows.track]
+    rejected += np.bincount(rows.frame[~keep], minlength=T)
+    rows = rows.subset(keep)
+    timing["initialise_s"] += time.perf_counter() - tick
+    report(1, 4)
+
+    tick = time.perf_counter()
+    noise = NoiseModels.create(cleaned, config, settings, motion_covs)
+    problem = build_graph(poses0, landmarks0, rows, deltas, noise)
+    timing["build_s"] += time.perf_counter() - tick
+
+    iterations: list[int] = []
+    errors: list[tuple[float, float]] = []
+    n_outliers = 0
+    for round_ in range(int(settings.rejection_rounds) + 1):
+        tick = time.perf_counter()
+        values, n_iter, e0, e1 = _levenberg_marquardt(problem, settings)
+        iterations.append(n_iter)
+        errors.append((e0, e1))
+        timing["optimise_s"] += time.perf_counter() - tick
+        log.info("smoother round %d: %d iterations, error %.4g -> %.4g", round_, n_iter, e0, e1)
+        if round_ == settings.rejection_rounds:
+            break
+        tick = time.perf_counter()
+        poses = poses_from_values(values, T)
+        landmarks = landmarks_from_values(values, problem.landmark_tracks, M)
+        residual, depth = stereo_residuals(poses, landmarks, calib, rows)
+        good = (np.linalg.norm(residual, axis=1) <= settings.outlier_threshold_px) & (depth >= settings.min_depth)
+        good_rows = rows.subset(good)
+        multi = keep_multi_observed(good_rows, M)
+        final_keep = np.zeros(len(rows), dtype=bool)
+        final_keep[np.flatnonzero(good)[multi]] = True
+        if final_keep.all():
+            timing["build_s"] += time.perf_counter() - tick
+            break
+        n_outliers += int(np.sum(~final_keep))
+        rejected += np.bincount(rows.frame[~final_keep], minlength=T)
+        rows = rows.subset(final_keep)
+        problem = build_graph(poses, landmarks, rows, deltas, noise)
+        timing["build_s"] += time.perf_counter() - tick
+    report(3, 4)
+
+    poses = poses_from_values(values, T)
+    landmarks = landmarks_from_values(values, problem.landmark_tracks, M)
+    est = Estimate.empty("smoother", cleaned.timestamps, M)
+    est.poses = poses
+    est.landmarks = landmarks
+    if settings.compute_marginals:
+        tick = time.perf_counter()
+        est.pose_cov, est.landmark_cov = batch_marginals(problem.graph, values, T, problem.landmark_tracks, M)
+        timing["marginals_s"] = time.perf_counter() - tick
+    report(4, 4)
+
+    total = time.perf_counter() - start
+    est.step_time_s = np.full(T, total / T)
+    est.n_updates = np.bincount(rows.frame, minlength=T).astype(np.int64)
+    est.n_rejected = rejected
+    first = cleaned.track_first_frame()[problem.landmark_tracks]
+    est.n_initialised = np.bincount(first, minlength=T).astype(np.int64)
+    est.info = {
+        "estimator": "smoother",
+        "init": source,
+        "timing": timing,
+        "total_s": total,
+        "iterations": int(sum(iterations)),
+        "iterations_per_round": iterations,
+        "initial_error": errors[0][0],
+        "final_error": errors[-1][1],
+        "n_landmarks": int(problem.landmark_tracks.size),
+        "n_stereo_factors": int(len(rows)),
+        "n_outliers_removed": n_outliers,
+        "n_cheirality_dropped": n_cheirality,
+        "track_origin": np.asarray(cleaned.track_origin).tolist(),
+        "cleaning": cleaning,
+        "settings": settings.to_dict(),
+        "config": config.to_dict(),
+    }
+    return est

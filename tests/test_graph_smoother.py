@@ -1,0 +1,135 @@
+"""The GTSAM smoothers on simulated drives: recovery, accuracy against the EKF, marginals,
+cheirality and outlier handling, and clear errors."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from ekf.config import FilterConfig
+from ekf.errors import EstimationError, InputError
+from ekf.sequence import Observations, Sequence
+from eval.metrics import ate_rmse
+from eval.simulate import SimConfig, simulate
+from graph.factors import (NoiseModels, build_graph, keep_multi_observed, relative_motions,
+                           triangulate_landmarks, usable_rows)
+from graph.isam2 import run_isam2
+from graph.marginals import gtsam_marginals, schur_marginals
+from graph.pose_conversions import L, X, estimation_error
+from graph.settings import SmootherSettings
+from graph.smoother import run_smoother
+
+CONFIG = FilterConfig(clean_tracks=False)  # simulated tracks need no repair
+
+
+@pytest.fixture(scope="module")
+def noise_free():
+    return simulate(SimConfig(seed=3, n_frames=120, noise_free=True))
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    return simulate(SimConfig(seed=4, n_frames=150))
+
+
+def test_noise_free_batch_recovers_ground_truth(noise_free):
+    est = run_smoother(noise_free.sequence, CONFIG, init="dead-reckoning")
+    assert ate_rmse(est.poses, noise_free.poses) < 0.01
+    has = est.has_landmark
+    assert has.sum() > 100
+    np.testing.assert_allclose(est.landmarks[has], noise_free.landmarks[has], atol=0.01)
+    assert set(est.info["timing"]) == {"build_s", "initialise_s", "optimise_s", "marginals_s"}
+    assert np.all(np.isfinite(est.pose_cov)) and np.all(np.isfinite(est.landmark_cov[has]))
+    assert est.info["track_origin"] == list(range(noise_free.sequence.n_tracks))
+
+
+def test_noise_free_isam2_recovers_ground_truth(noise_free):
+    est = run_isam2(noise_free.sequence, CONFIG)
+    assert ate_rmse(est.poses, noise_free.poses) < 0.01
+    assert np.all(np.isfinite(est.pose_cov))
+
+
+@pytest.mark.slow
+def test_noisy_smoother_beats_the_ekf(noisy):
+    from ekf.estimators import ESTIMATORS
+
+    ekf = ESTIMATORS["ekf-joint"](noisy.sequence, CONFIG, None)
+    est = run_smoother(noisy.sequence, CONFIG, initial=ekf)
+    ate_ekf = ate_rmse(ekf.poses, noisy.poses)
+    ate_smoother = ate_rmse(est.poses, noisy.poses)
+    assert ate_smoother < ate_ekf, (ate_smoother, ate_ekf)
+    # the covariance is roughly consistent: mean pose NEES within a loose band of 6
+    from eval.metrics import nees_pose
+
+    nees = nees_pose(est.poses, est.pose_cov, noisy.poses)
+    assert 1.0 < np.mean(nees) < 20.0
+
+
+def _small_graph(sim):
+    seq = sim.sequence
+    settings = SmootherSettings()
+    deltas, covs = relative_motions(seq, CONFIG)
+    rows, _ = usable_rows(seq, 1.0)
+    rows = rows.subset(keep_multi_observed(rows, seq.n_tracks))
+    landmarks = triangulate_landmarks(sim.poses, seq.calibration, rows, seq.n_tracks)
+    noise = NoiseModels.create(seq, CONFIG, settings, covs)
+    return build_graph(sim.poses, landmarks, rows, deltas, noise)
+
+
+def test_schur_marginals_equal_gtsam_marginals():
+    sim = simulate(SimConfig(seed=5, n_frames=40))
+    problem = _small_graph(sim)
+    T, M = sim.sequence.n_frames, sim.sequence.n_tracks
+    fast = schur_marginals(problem.graph, problem.values, T, problem.landmark_tracks, M)
+    ref = gtsam_marginals(problem.graph, problem.values, T, problem.landmark_tracks, M)
+    for a, b in zip(fast, ref):
+        assert np.array_equal(np.isfinite(a), np.isfinite(b))
+        ok = np.isfinite(b)
+        np.testing.assert_allclose(a[ok], b[ok], rtol=1e-6, atol=1e-12 * np.abs(b[ok]).max())
+
+
+def test_cheirality_and_outliers_are_removed(noise_free):
+    seq = noise_free.sequence
+    z = seq.obs.z.copy()
+    # one observation of a long track pushed 40 px sideways: an outlier
+    lengths = seq.track_lengths()
+    j = int(np.argmax(lengths))
+    rows = np.flatnonzero(seq.obs.track == j)
+    z[rows[len(rows) // 2], [0, 2]] += 40.0
+    bad = Sequence(seq.name, seq.timestamps, seq.linear_velocity, seq.angular_velocity,
+                   Observations(seq.obs.frame_ptr, seq.obs.track, z), seq.n_tracks, seq.calibration)
+    est = run_smoother(bad, CONFIG, init="dead-reckoning")
+    assert est.info["n_outliers_removed"] >= 1
+    assert ate_rmse(est.poses, noise_free.poses) < 0.01
+
+
+def test_estimation_error_names_the_landmark():
+    """A landmark with only a behind-the-camera stereo factor (zero Jacobian), no prior."""
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.1)))
+    K = gtsam.Cal3_S2Stereo(700, 700, 0, 600, 180, 0.5)
+    graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(600, 590, 180),
+                                          gtsam.noiseModel.Isotropic.Sigma(3, 1.0), X(0), L(12), K))
+    values = gtsam.Values()
+    values.insert(X(0), gtsam.Pose3())
+    values.insert(L(12), np.array([0.0, 0.0, -5.0]))
+    with pytest.raises(RuntimeError) as info:
+        gtsam.Marginals(graph, values)
+    err = estimation_error(info.value, "computing marginal covariances")
+    assert isinstance(err, EstimationError)
+    assert "landmark l12" in str(err) and "\n" not in str(err)
+    with pytest.raises(EstimationError, match="landmark l12"):
+        schur_marginals(graph, values, 1, np.array([12]), 13)
+
+
+def test_bad_input_is_an_input_error(noise_free):
+    seq = noise_free.sequence
+    v = seq.linear_velocity.copy()
+    v[7, 1] = np.nan
+    bad = Sequence(seq.name, seq.timestamps, v, seq.angular_velocity, seq.obs, seq.n_tracks,
+                   seq.calibration)
+    with pytest.raises(InputError, match="linear_velocity.*step 7"):
+        run_smoother(bad, CONFIG, init="dead-reckoning")
+    with pytest.raises(InputError, match="init"):
+        run_smoother(seq, CONFIG, init="magic")
