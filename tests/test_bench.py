@@ -164,3 +164,28 @@ def test_nees_command_writes_json_and_plot(tmp_path, capsys):
     assert data["estimators"]["dead-reckoning"]["anees_landmark"] is None
     assert (out / "nees.png").read_bytes().startswith(PNG_MAGIC)
     assert "ANEES" in capsys.readouterr().out
+
+
+def test_bench_on_a_folder_of_files_finds_ground_truth_and_landmarks(tmp_path):
+    from tests.test_run_cli import require_module
+
+    require_module("eval.loader")
+    require_module("eval.groundtruth")
+    from eval.simulate import SimConfig, simulate, write_simulation
+
+    data = tmp_path / "data"
+    for seed in (1, 2):
+        write_simulation(simulate(SimConfig(seed=seed, n_frames=40, name=f"s{seed}")), data)
+    out = tmp_path / "bench"
+    rc = main(["bench", str(data), "-e", "dead-reckoning,ekf-joint", "-j", "2", "--out", str(out), "-q"])
+    assert rc == 0
+    results = json.loads((out / "results.json").read_text())
+    _check_schema(results, ["dead-reckoning", "ekf-joint"])
+    assert [s["name"] for s in results["sequences"]] == ["s1", "s2"]
+    for s in results["sequences"]:
+        assert s["has_ground_truth"] and s["has_landmark_truth"]
+        assert s["path"].endswith(f"{s['name']}.npz")
+        joint = s["estimators"][1]
+        assert joint["ate_m"] is not None and joint["map_rmse_m"] is not None
+        assert all(v is None for v in joint["vs_smoother"].values())  # no smoother ran
+        assert (out / s["name"] / "ekf-joint.tum").is_file()
