@@ -82,7 +82,8 @@ class BenchSequence:
 
 @dataclass
 class JobFailure:
-    """An estimator that failed on a sequence (EstimationError, or its module is missing)."""
+    """An estimator that failed on a sequence (EstimationError, its module is missing, or it
+    crashed: logged with its traceback, recorded in results.json as ``error``)."""
 
     sequence: str
     estimator: str
@@ -169,6 +170,9 @@ def _job(seq: Sequence, key: str, name: str, config: FilterConfig, initial: Esti
         result = run_estimator(seq, name, config, progress=None, initial=initial)
     except (EstimationError, ImportError) as exc:
         return JobFailure(key, name, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+    except Exception as exc:  # a crash of one estimator must not lose the whole benchmark
+        log.warning("%s on %s crashed", name, key, exc_info=True)
+        return JobFailure(key, name, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
     result.sequence = key
     return result
 
@@ -210,6 +214,8 @@ def run_jobs(
         follow = []
         if res.estimator == init_name:
             initial = res.estimate if isinstance(res, JobResult) else None
+            if initial is not None and not np.all(np.isfinite(initial.poses)):
+                initial = None  # a diverged EKF: let the smoother initialise itself
             follow = [(res.sequence, n, initial) for n in estimators if n in waiting]
         return follow
 
