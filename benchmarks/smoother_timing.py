@@ -1,0 +1,82 @@
+"""Time the GTSAM smoother's stages on data files and score it where ground truth exists.
+
+    .venv/bin/python benchmarks/smoother_timing.py FILE.npz [FILE.npz ...] [--init ekf|dead-reckoning|isam2] [--isam2]
+
+Prints, per file: the time split (build, initialise, optimise, marginals), LM iterations, and
+when ``groundtruth/NAME.txt`` lies beside the file, raw and aligned ATE and KITTI drift.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ekf.config import FilterConfig
+from ekf.geometry import se3_inv
+from ekf.sequence import Calibration, Observations, Sequence
+
+
+def load(path: Path) -> Sequence:
+    try:
+        from eval.loader import load_sequence
+    except ImportError:
+        pass
+    else:
+        return load_sequence(path)
+    d = np.load(path)
+    ts = np.ravel(d["time_stamps"])
+    cam_T_imu = d["cam_T_imu"] if "cam_T_imu" in d else se3_inv(d["imu_T_cam"])
+    w = d["rotational_velocity"] if "rotational_velocity" in d else d["angular_velocity"]
+    return Sequence(path.stem, ts, d["linear_velocity"].T, w.T, Observations.from_dense(d["features"]),
+                    d["features"].shape[1], Calibration(d["K"], float(d["b"]), cam_T_imu), source=str(path))
+
+
+def ground_truth(path: Path, cam_T_imu: np.ndarray) -> np.ndarray | None:
+    gt_file = path.parent / "groundtruth" / f"{path.stem}.txt"
+    if not gt_file.exists():
+        return None
+    rows = np.loadtxt(gt_file)
+    P = np.tile(np.eye(4), (len(rows), 1, 1))
+    P[:, :3, :] = rows[:, 1:13].reshape(-1, 3, 4)
+    return se3_inv(cam_T_imu) @ P @ cam_T_imu
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("files", nargs="+", type=Path)
+    parser.add_argument("--init", default="ekf", choices=("ekf", "dead-reckoning", "isam2"))
+    parser.add_argument("--isam2", action="store_true", help="time the incremental smoother instead")
+    parser.add_argument("--no-clean", action="store_true", help="skip track cleaning")
+    args = parser.parse_args()
+    config = FilterConfig(clean_tracks=not args.no_clean)
+    from eval.metrics import trajectory_metrics
+    from graph.isam2 import run_isam2
+    from graph.smoother import run_smoother
+
+    for path in args.files:
+        seq = load(path)
+        start = time.perf_counter()
+        est = run_isam2(seq, config) if args.isam2 else run_smoother(seq, config, init=args.init)
+        wall = time.perf_counter() - start
+        t = est.info["timing"]
+        print(f"{path.name} {est.estimator} init={est.info.get('init', '-')} "
+              f"cleaned={est.info['cleaning'].get('cleaned')} frames={est.n_frames} "
+              f"landmarks={est.info['n_landmarks']} factors={est.info['n_stereo_factors']}")
+        print(f"  time: total {wall:.1f} s = build {t['build_s']:.1f} + initialise {t['initialise_s']:.1f} "
+              f"+ optimise {t['optimise_s']:.1f} + marginals {t['marginals_s']:.1f} s; "
+              f"LM iterations {est.info.get('iterations_per_round', '-')}, "
+              f"outliers removed {est.info.get('n_outliers_removed', '-')}")
+        gt = ground_truth(path, seq.calibration.cam_T_imu)
+        if gt is not None:
+            n = min(len(gt), est.n_frames)
+            m = trajectory_metrics(est.poses[:n], gt[:n])
+            print(f"  vs ground truth ({n} frames): ATE raw {m['ate_rmse_m']:.2f} m, "
+                  f"aligned (SE3) {m['ate_se3_rmse_m']:.2f} m, KITTI t_rel {m['kitti_t_rel_pct']:.2f} %, "
+                  f"r_rel {m['kitti_r_rel_deg_per_100m']:.3f} deg/100m")
+
+
+if __name__ == "__main__":
+    main()
