@@ -1,0 +1,1 @@
+"""Regression tests: consistency, accuracy and EKF-smoother agreement pinned with bounds."""
