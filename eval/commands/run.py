@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
 def _gt_path(gt, override) -> str | None:
     if gt is None:
         return None
-    path = getattr(gt, "path", None) or override
+    path = getattr(gt, "source", None) or getattr(gt, "path", None) or override
     return str(path) if path is not None else None
 
 
