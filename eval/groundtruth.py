@@ -1,0 +1,208 @@
+"""Ground-truth trajectories in the KITTI odometry pose format.
+
+A pose file has one line per frame: 12 numbers ``r11 r12 r13 tx r21 r22 r23 ty r31 r32 r33 tz``
+(the 3x4 pose ``P(k)`` of the left camera at frame k in the left-camera frame of frame 0), or
+13 numbers with the time since the first frame in front. Line k belongs to frame k of the
+drive; a file may cover fewer frames than the drive (0027: 1101 lines for 1106 frames), and
+only the frames both have are scored.
+
+The IMU poses, in the frame of the IMU at frame 0 (the world frame of every estimate), are
+
+    T_imu(k) = inv(cam_T_imu) @ P(k) @ cam_T_imu.
+
+For ``DIR/NAME.npz`` the ground truth is looked up at ``DIR/groundtruth/NAME.txt`` unless a
+file is given explicitly (``--gt FILE``).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ekf.errors import InputError
+from ekf.geometry import is_rigid
+from ekf.sequence import Calibration
+
+#: Rigidity tolerance for the rotation part of a pose line (files carry ~7 digits).
+RIGID_TOL = 1e-4
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """``poses[i]`` is world_T_imu at frame ``frames[i]`` (world = IMU at frame 0);
+    ``times`` (n,) the file's time column where it has one, else None."""
+
+    frames: np.ndarray
+    poses: np.ndarray
+    source: str
+    times: np.ndarray | None = None
+
+    @property
+    def n(self) -> int:
+        return int(self.frames.size)
+
+    def covers(self, n_frames: int) -> str:
+        """A short phrase like ``1101 of 1106 frames``."""
+        return f"{self.n} of {n_frames} frames"
+
+
+def read_kitti_poses(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
+    """Camera poses ``P`` (n, 4, 4) and the time column (n,) or None, from a 12- or
+    13-column KITTI pose file. Faults raise :class:`InputError` naming file and line."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: ground-truth file does not exist")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: unreadable ground-truth file ({exc})") from None
+    rows: list[list[float]] = []
+    line_numbers: list[int] = []
+    width = None
+    for number, line in enumerate(text.splitlines(), start=1):
+        fields = line.split()
+        if not fields or line.lstrip().startswith("#"):
+            continue
+        if len(fields) not in (12, 13):
+            raise InputError(
+                f"{path}: line {number} has {len(fields)} columns, expected 12 (3x4 pose) "
+                "or 13 (time and 3x4 pose)"
+            )
+        if width is not None and len(fields) != width:
+            raise InputError(
+                f"{path}: line {number} has {len(fields)} columns, earlier lines {width}"
+            )
+        width = len(fields)
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            bad = next(f for f in fields if not _is_float(f))
+            raise InputError(f"{path}: line {number}: non-numeric value {bad!r}") from None
+        if not np.all(np.isfinite(values)):
+            raise InputError(f"{path}: line {number}: NaN or infinite value")
+        rows.append(values)
+        line_numbers.append(number)
+    if not rows:
+        raise InputError(f"{path}: ground-truth file has no pose lines")
+    data = np.asarray(rows)
+    times = data[:, 0] if width == 13 else None
+    n = data.shape[0]
+    P = np.tile(np.eye(4), (n, 1, 1))
+    P[:, :3, :] = data[:, -12:].reshape(n, 3, 4)
+    for i in range(n):
+        if not is_rigid(P[i], tol=RIGID_TOL):
+            raise InputError(
+                f"{path}: line {line_numbers[i]}: the pose's rotation is not orthonormal "
+                "with determinant +1"
+            )
+    return P, times
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def orthonormalise(P: np.ndarray) -> np.ndarray:
+    """The nearest rotation (SVD) in each pose (n, 4, 4): files carry ~7 digits, so their
+    rotations are orthonormal only to ~1e-7, which rigid inverses (transposes) would carry."""
+    P = np.array(P, dtype=float)
+    U, _, Vt = np.linalg.svd(P[:, :3, :3])
+    D = np.ones((P.shape[0], 3))
+    D[:, 2] = np.sign(np.linalg.det(U @ Vt))
+    P[:, :3, :3] = (U * D[:, None, :]) @ Vt
+    return P
+
+
+def camera_to_imu_poses(P: np.ndarray, cam_T_imu: np.ndarray) -> np.ndarray:
+    """``T_imu(k) = inv(cam_T_imu) @ P(k) @ cam_T_imu`` for camera poses P (n, 4, 4)."""
+    # The general inverse, as the formula says: the files' cam_T_imu is orthonormal only to
+    # ~1e-7, and a transpose-inverse would leave T_imu(0) that far from the identity.
+    return np.linalg.inv(cam_T_imu) @ np.asarray(P, dtype=float) @ cam_T_imu
+
+
+def imu_to_camera_poses(T_imu: np.ndarray, cam_T_imu: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`camera_to_imu_poses`: ``P(k) = cam_T_imu @ T_imu(k) @ inv(cam_T_imu)``."""
+    return cam_T_imu @ np.asarray(T_imu, dtype=float) @ np.linalg.inv(cam_T_imu)
+
+
+def load_ground_truth(
+    path: str | os.PathLike, calibration: Calibration, n_frames: int
+) -> GroundTruth:
+    """Read a KITTI pose file for a drive of ``n_frames`` frames and convert it to IMU poses.
+
+    Line k is frame k; a file with more pose lines than the drive has frames is an error.
+    """
+    path = Path(path)
+    P, times = read_kitti_poses(path)
+    if P.shape[0] > n_frames:
+        raise InputError(
+            f"{path}: line {n_frames + 1}: {P.shape[0]} pose lines for a drive of "
+            f"{n_frames} frames"
+        )
+    poses = camera_to_imu_poses(orthonormalise(P), calibration.cam_T_imu)
+    # World = IMU at frame 0 (a no-op for KITTI files, whose first pose is the identity).
+    poses = np.linalg.inv(poses[0]) @ poses
+    return GroundTruth(
+        frames=np.arange(P.shape[0], dtype=np.int64), poses=poses, source=str(path), times=times
+    )
+
+
+def ground_truth_path(npz_path: str | os.PathLike) -> Path:
+    """Where the ground truth of ``DIR/NAME.npz`` is looked for: ``DIR/groundtruth/NAME.txt``."""
+    npz_path = Path(npz_path)
+    return npz_path.parent / "groundtruth" / f"{npz_path.stem}.txt"
+
+
+def find_ground_truth(
+    npz_path: str | os.PathLike,
+    override: str | os.PathLike | None = None,
+    calibration: Calibration | None = None,
+    n_frames: int | None = None,
+) -> GroundTruth | None:
+    """The ground truth of a drive: ``override`` if given (it must exist), else
+    ``DIR/groundtruth/NAME.txt`` if present, else None.
+
+    Calibration and frame count are read from the .npz unless given.
+    """
+    path = Path(override) if override is not None else ground_truth_path(npz_path)
+    if override is None and not path.is_file():
+        return None
+    if calibration is None or n_frames is None:
+        from eval.loader import read_calibration
+
+        calibration, n_frames = read_calibration(npz_path)
+    return load_ground_truth(path, calibration, n_frames)
+
+
+def write_kitti_poses(
+    path: str | os.PathLike, poses_cam: np.ndarray, times: np.ndarray | None = None
+) -> None:
+    """Write camera poses (n, 4, 4) as a KITTI pose file, 13 columns with ``times`` (n,) in
+    front, else 12; atomically (temporary file, then ``os.replace``)."""
+    path = Path(path)
+    P = np.asarray(poses_cam, dtype=float)
+    if P.ndim != 3 or P.shape[1:] not in ((4, 4), (3, 4)):
+        raise InputError(f"poses for {path} have shape {P.shape}, expected (n, 4, 4)")
+    data = P[:, :3, :].reshape(P.shape[0], 12)
+    if times is not None:
+        times = np.asarray(times, dtype=float).reshape(-1)
+        if times.size != P.shape[0]:
+            raise InputError(f"{path}: {times.size} times for {P.shape[0]} poses")
+        data = np.concatenate([times[:, None], data], axis=1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".txt.tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            np.savetxt(fh, data, fmt="%.12g")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
