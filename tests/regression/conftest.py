@@ -1,13 +1,4 @@
-"""Shared settings of the regression tests.
-
-* ``VISLAM_REGRESSION_BREAK`` deliberately breaks the estimators, to show the tests can fail:
-  ``pixel-noise`` doubles the pixel noise the estimators assume (``FilterConfig.pixel_sigma``
-  x 2); ``no-cross-cov`` runs the joint filter without its pose-landmark cross-covariance
-  (``ekf-joint`` is replaced by ``ekf-decoupled``, the same filter with that block dropped).
-  Unset (the default and CI) nothing is broken.
-* Real data: ``VISLAM_DATA`` or ``../shared/data/kitti-pr3`` beside the repository. Missing data
-  skips the test with the reason, except with ``CI=true``, where it fails.
-"""
+"""Fixtures of the regression tests (settings and the deliberate break: tests/regression/breaks.py)."""
 
 from __future__ import annotations
 
@@ -17,41 +8,7 @@ from pathlib import Path
 import pytest
 
 from ekf.config import FilterConfig
-
-BREAKS = ("pixel-noise", "no-cross-cov")
-REPO = Path(__file__).resolve().parents[2]
-
-
-def in_ci() -> bool:
-    return os.environ.get("CI", "").lower() == "true"
-
-
-def skip_or_fail(reason: str) -> None:
-    """Skip the test with ``reason``; in CI (CI=true) fail instead."""
-    if in_ci():
-        pytest.fail(f"{reason} (CI=true: missing inputs fail)")
-    pytest.skip(reason)
-
-
-def regression_break() -> str | None:
-    value = os.environ.get("VISLAM_REGRESSION_BREAK", "").strip() or None
-    if value is not None and value not in BREAKS:
-        raise pytest.UsageError(f"VISLAM_REGRESSION_BREAK={value!r}: expected one of {', '.join(BREAKS)}")
-    return value
-
-
-def broken_config(config: FilterConfig) -> FilterConfig:
-    """``config`` with the deliberate break applied (if any)."""
-    if regression_break() == "pixel-noise":
-        return config.replace(pixel_sigma=2.0 * config.pixel_sigma)
-    return config
-
-
-def run_name(estimator: str) -> str:
-    """The registry name actually run for ``estimator`` (the break may swap it)."""
-    if regression_break() == "no-cross-cov" and estimator == "ekf-joint":
-        return "ekf-decoupled"
-    return estimator
+from tests.regression.breaks import REPO, broken_config, regression_break, run_name, skip_or_fail
 
 
 @pytest.fixture(scope="session")
