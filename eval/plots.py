@@ -31,6 +31,8 @@ COLOURS = {
     "smoother": "tab:red",
     "smoother-isam2": "tab:purple",
 }
+#: Mapping runs on the dead-reckoned trajectory: dashed, so dead reckoning shows beneath it.
+LINESTYLES = {"mapping": (0, (5, 4))}
 GT_STYLE = {"color": "black", "linestyle": "--", "linewidth": 1.5, "label": "ground truth"}
 DPI = 110
 
@@ -72,7 +74,8 @@ def plot_trajectories(
         pts.append(gt_positions[:, :2])
     for i, (name, est) in enumerate(estimates.items()):
         p = est.positions
-        ax.plot(p[:, 0], p[:, 1], color=_colour(name, i), linewidth=1.2, label=name)
+        ax.plot(p[:, 0], p[:, 1], color=_colour(name, i), linewidth=1.2, label=name,
+                linestyle=LINESTYLES.get(name, "-"))
         pts.append(p[:, :2])
     first = next(iter(estimates.values()), None)
     if first is not None:
@@ -139,7 +142,8 @@ def plot_error_over_distance(
     for i, (name, est) in enumerate(estimates.items()):
         ok = frames < est.n_frames
         err = np.linalg.norm(est.positions[frames[ok]] - gt_poses[ok, :3, 3], axis=1)
-        ax.plot(dist[ok], err, color=_colour(name, i), linewidth=1.2, label=name)
+        ax.plot(dist[ok], err, color=_colour(name, i), linewidth=1.2, label=name,
+                linestyle=LINESTYLES.get(name, "-"))
     ax.set_xlabel("distance travelled (m)")
     ax.set_ylabel("translation error (m)")
     ax.set_title(title or "Translation error over distance (no alignment)")
