@@ -45,7 +45,7 @@ log = logging.getLogger(__name__)
 
 SCHEMA = 1
 #: Frames of the default simulated drive: the simulator's default drive (600 frames, 60 s);
-#: `vislam bench` with every default estimator takes about 60 s on a 2-core machine.
+#: `vislam bench` with every default estimator takes 30-60 s on a 2-core machine.
 DEFAULT_BENCH_FRAMES = 600
 #: Frames of each Monte Carlo drive of `vislam nees`.
 DEFAULT_NEES_FRAMES = 200
