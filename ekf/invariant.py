@@ -1,0 +1,486 @@
+"""``ekf-invariant``: a right-invariant EKF on SE_{1+K}(3) (Barrau & Bonnabel's invariant EKF SLAM).
+
+State. The IMU pose in the world and the K active landmarks form one group element
+
+    X = [[R, p, l_1, ..., l_K],
+         [0, I_{1+K}        ]]          (world = IMU at frame 0; T = [[R, p], [0, 1]] = world_T_imu)
+
+and, when ``config.gyro_bias`` is set, a constant gyro bias ``b`` (a vector, outside the group).
+
+Error. Right-invariant: ``X_true = exp(xi) X_est`` with the tangent ordered
+
+    xi = [xi_p (3), xi_R (3), (xi_b (3) with gyro bias), xi_l1 (3), ..., xi_lK (3)]
+
+so the leading pose block ``[xi_p; xi_R]`` is an SE(3) twist, translation first, in the
+conventions of :mod:`ekf.geometry`: ``T_true = se3_exp([xi_p; xi_R]) T_est`` (a left, world-frame
+perturbation of T). The exponential of SE_{1+K}(3) is, with ``R_d = exp(xi_R^)``, ``J = J_l(xi_R)``,
+
+    R <- R_d R,   p <- R_d p + J xi_p,   l_j <- R_d l_j + J xi_lj,   (b <- b + xi_b).
+
+Propagation (the group form of paper eq. 4, body twist ``u = [v; w]``): ``T <- T se3_exp(tau u)``,
+landmarks constant. The dynamics are group-affine with body inputs, so the error propagates with
+the identity; body twist noise ``n`` enters as ``xi <- xi + tau Ad_X[:, pose] J_l(tau u) n`` where
+the landmark rows of the SE_{1+K}(3) adjoint are ``[0, l_j^ R]`` (a rotation error also moves the
+landmark error coordinates ``xi_lj ~ l_true - l_est + l_est^ xi_R``): see
+:func:`noise_jacobian`. A gyro bias makes the error dynamics depend on the estimate
+("imperfect IEKF"): ``xi <- xi - tau B_R xi_b`` to first order (:func:`bias_jacobian`).
+
+Observation (paper eq. 1-3): ``z = M pi(cam_T_imu T^-1 l_j)``. Under the right-invariant error,
+``T_true^-1 l_true = R^T (l - p) + R^T J_r(xi_R) (xi_lj - xi_p)`` exactly, so the Jacobian is
+``H_j = A_j [-I, 0, (0), I at l_j]`` with ``A_j = M dpi/dq(q) C R^T`` (C the rotation of
+cam_T_imu): it does not depend on the landmark or position estimates, only on R and q
+(:func:`observation_jacobian`).
+
+New landmarks (stereo triangulation ``p_c`` of ``z``): ``l = T imu_T_cam p_c`` and
+``xi_l = xi_p + R R_ic dp_c`` to first order (:func:`augmentation_jacobians`): the new landmark
+inherits the position error of the pose and none of its rotation error.
+
+Output. ``Estimate.pose_cov`` converts the pose block with
+:func:`ekf.conventions.left_cov_to_estimate`; a landmark's world covariance is ``G P G^T`` with
+``dl = xi_lj - l^ xi_R`` (:func:`landmark_world_jacobian`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.linalg import cho_factor, solve_triangular
+from scipy.stats import chi2
+
+from ekf.camera import dpi_dq, project, triangulate_with_jacobian
+from ekf.config import FilterConfig
+from ekf.conventions import left_cov_to_estimate
+from ekf.errors import EstimationError, InputError
+from ekf.estimate import Estimate
+from ekf.geometry import (
+    adjoint,
+    curly_hat,
+    hat,
+    homogeneous,
+    se3_exp,
+    so3_exp,
+    so3_left_jacobian,
+)
+from ekf.sequence import Sequence
+
+log = logging.getLogger(__name__)
+
+ESTIMATOR_NAME = "ekf-invariant"
+
+#: Index blocks of the error state.
+P_IDX = slice(0, 3)
+R_IDX = slice(3, 6)
+B_IDX = slice(6, 9)
+
+
+def landmark_offset(gyro_bias: bool) -> int:
+    """Index of the first landmark coordinate in the error state."""
+    return 9 if gyro_bias else 6
+
+
+# --------------------------------------------------------------------------------------
+# Group math of SE_{1+K}(3)
+# --------------------------------------------------------------------------------------
+def se3_left_jacobian(xi: np.ndarray, terms: int = 14) -> np.ndarray:
+    """Left Jacobian of SE(3) (6x6, translation first): ``exp(xi + d) ~ exp(J_l d) exp(xi)``.
+
+    Power series ``sum ad^n / (n+1)!`` of :func:`ekf.geometry.curly_hat`; the twists here are
+    one time step long (rotation well under a radian), where 14 terms reach machine precision.
+    """
+    ad = curly_hat(np.asarray(xi, dtype=float))
+    out = np.eye(6)
+    term = np.eye(6)
+    for n in range(1, terms):
+        term = term @ ad / (n + 1)
+        out = out + term
+    return out
+
+
+def retract(
+    T: np.ndarray, landmarks: np.ndarray, delta: np.ndarray, gyro_bias: np.ndarray | None = None
+):
+    """``exp(delta) X``: apply a right-invariant correction to pose, landmarks (and bias).
+
+    ``delta`` is ordered as the error state. Returns ``(T, landmarks, gyro_bias)``.
+    """
+    delta = np.asarray(delta, dtype=float)
+    phi = delta[R_IDX]
+    Rd = so3_exp(phi)
+    J = so3_left_jacobian(phi)
+    off = landmark_offset(gyro_bias is not None)
+    T_new = np.eye(4)
+    T_new[:3, :3] = Rd @ T[:3, :3]
+    T_new[:3, 3] = Rd @ T[:3, 3] + J @ delta[P_IDX]
+    dl = delta[off:].reshape(-1, 3)
+    lm_new = landmarks @ Rd.T + dl @ J.T
+    b_new = None if gyro_bias is None else gyro_bias + delta[B_IDX]
+    return T_new, lm_new, b_new
+
+
+def error_between(
+    T_true: np.ndarray,
+    lm_true: np.ndarray,
+    T_est: np.ndarray,
+    lm_est: np.ndarray,
+    b_true: np.ndarray | None = None,
+    b_est: np.ndarray | None = None,
+) -> np.ndarray:
+    """The exact error ``xi = log(X_true X_est^-1)`` (the inverse of :func:`retract`)."""
+    from ekf.geometry import so3_left_jacobian_inv, so3_log
+
+    Rd = T_true[:3, :3] @ T_est[:3, :3].T
+    phi = so3_log(Rd)
+    Jinv = so3_left_jacobian_inv(phi)
+    xp = Jinv @ (T_true[:3, 3] - Rd @ T_est[:3, 3])
+    xl = (np.asarray(lm_true) - np.asarray(lm_est) @ Rd.T) @ Jinv.T
+    parts = [xp, phi]
+    if b_true is not None:
+        parts.append(np.asarray(b_true) - np.asarray(b_est))
+    parts.append(xl.ravel())
+    return np.concatenate(parts)
+
+
+def noise_jacobian(T: np.ndarray, landmarks: np.ndarray, twist: np.ndarray, gyro_bias: bool = False):
+    """``B`` (n x 6): one step's error change is ``tau B n`` for body twist noise ``n``.
+
+    ``T`` is the pose at the start of the step and ``twist = tau u`` the step's twist.
+    ``B = Ad_X[:, pose] J_l(tau u)`` with the landmark rows of the SE_{1+K}(3) adjoint
+    ``[0, l_j^ R]``; bias rows are zero.
+    """
+    off = landmark_offset(gyro_bias)
+    K = landmarks.shape[0]
+    R = T[:3, :3]
+    B = np.zeros((off + 3 * K, 6))
+    B[:6] = adjoint(T)
+    B[off:, 3:] = (hat(landmarks) @ R).reshape(3 * K, 3)
+    return B @ se3_left_jacobian(twist)
+
+
+def observation_jacobian(T: np.ndarray, q_cam: np.ndarray, cam_T_imu: np.ndarray, M: np.ndarray):
+    """``A`` (N, 4, 3) with ``H_j = A_j [-I at p, 0 at R, I at l_j]`` (right-invariant error).
+
+    ``q_cam`` (N, 3) the predicted points in the left camera frame. ``A_j = M dpi/dq C R^T``.
+    """
+    qh = homogeneous(q_cam)
+    CRt = cam_T_imu[:3, :3] @ T[:3, :3].T
+    return M @ dpi_dq(qh)[:, :, :3] @ CRt
+
+
+def augmentation_jacobians(T: np.ndarray, J_tri: np.ndarray, imu_T_cam: np.ndarray):
+    """New landmark error ``xi_l = xi_p + G_z dz``: returns ``G_z`` (N, 3, 4).
+
+    ``J_tri`` (N, 3, 4) is ``dp_cam/dz`` of the triangulation; ``G_z = R R_ic J_tri``. The
+    Jacobian with respect to the existing error is ``I`` at ``xi_p`` and zero elsewhere.
+    """
+    return (T[:3, :3] @ imu_T_cam[:3, :3]) @ J_tri
+
+
+def landmark_world_jacobian(landmarks: np.ndarray) -> np.ndarray:
+    """``G`` (N, 3, 6) on ``[xi_R; xi_l]``: ``l_true - l_est ~ -l^ xi_R + xi_l``."""
+    landmarks = np.atleast_2d(landmarks)
+    G = np.zeros((landmarks.shape[0], 3, 6))
+    G[:, :, :3] = -hat(landmarks)
+    G[:, :, 3:] = np.eye(3)
+    return G
+
+
+def landmark_world_cov(P: np.ndarray, landmarks: np.ndarray, slots: np.ndarray, off: int):
+    """World-frame covariances (N, 3, 3) of the landmarks in state ``slots``."""
+    if slots.size == 0:
+        return np.zeros((0, 3, 3))
+    li = off + 3 * slots[:, None] + np.arange(3)
+    ri = np.broadcast_to(np.arange(3, 6), li.shape)
+    idx = np.concatenate([ri, li], axis=1)  # (N, 6)
+    sub = P[idx[:, :, None], idx[:, None, :]]
+    G = landmark_world_jacobian(landmarks)
+    return G @ sub @ np.swapaxes(G, -1, -2)
+
+
+# --------------------------------------------------------------------------------------
+# The filter
+# --------------------------------------------------------------------------------------
+def _interval_twists(seq: Sequence, pairing: str) -> np.ndarray:
+    u = seq.velocities
+    if pairing == "current":
+        return u[:-1]
+    if pairing == "next":
+        return u[1:]
+    return 0.5 * (u[:-1] + u[1:])
+
+
+def _maybe_clean(seq: Sequence, config: FilterConfig):
+    if not config.clean_tracks:
+        return seq, False
+    try:
+        from ekf.cleaning import clean_sequence
+    except ImportError:  # the cleaning module lands separately
+        log.warning("ekf.cleaning is not available: running on the uncleaned tracks")
+        return seq, False
+    cleaned, _report = clean_sequence(
+        seq, split_repeats=True, min_disparity=config.min_disparity, max_depth=None
+    )
+    return cleaned, True
+
+
+def _blas_limits(n: int):
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - listed as a dependency
+        import contextlib
+
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=n, user_api="blas")
+
+
+@dataclass
+class _State:
+    T: np.ndarray
+    landmarks: np.ndarray  # (K, 3), slot order
+    tracks: np.ndarray  # (K,) track id of each slot
+    P: np.ndarray
+    bias: np.ndarray | None
+
+
+def run_invariant(
+    seq: Sequence,
+    config: FilterConfig = FilterConfig(),
+    progress: Callable[[int], None] | None = None,
+) -> Estimate:
+    """Run the right-invariant EKF over ``seq``; see the module docstring for the model.
+
+    ``progress`` is called after each frame with the number of frames finished.
+    """
+    seq, cleaned = _maybe_clean(seq, config)
+    if seq.n_frames < 1:
+        raise InputError(f"sequence {seq.name!r}: no frames")
+    dt = seq.dt
+    if np.any(~np.isfinite(dt)) or np.any(dt <= 0):
+        bad = int(np.flatnonzero(~(dt > 0))[0])
+        raise InputError(f"sequence {seq.name!r}: timestamps not increasing at index {bad + 1}")
+    with _blas_limits(int(config.blas_threads)):
+        est = _run(seq, config, progress)
+    est.info.update(
+        {
+            "estimator": ESTIMATOR_NAME,
+            "config": config.to_dict(),
+            "clean_tracks_applied": cleaned,
+            "track_origin": np.asarray(seq.track_origin).tolist(),
+            "error_state": "right-invariant SE_{1+K}(3): [xi_p, xi_R, (xi_b), xi_l...]",
+        }
+    )
+    return est
+
+
+def _run(seq: Sequence, config: FilterConfig, progress) -> Estimate:
+    cal = seq.calibration
+    M = cal.M
+    cam_T_imu = np.asarray(cal.cam_T_imu, dtype=float)
+    imu_T_cam = cal.imu_T_cam
+    V = config.pixel_cov
+    Vinv = np.linalg.inv(V)
+    W = config.velocity_cov
+    use_bias = bool(config.gyro_bias)
+    off = landmark_offset(use_bias)
+    gate = None if config.gate_probability is None else chi2.ppf(config.gate_probability, 4)
+    twists = _interval_twists(seq, config.velocity_pairing)
+    dt = seq.dt
+    last_frame = seq.track_last_frame()
+    Tn = seq.n_frames
+
+    est = Estimate.empty(ESTIMATOR_NAME, seq.timestamps, seq.n_tracks)
+    pose_P = np.zeros((Tn, 6, 6))
+
+    P0 = np.zeros((off, off))
+    P0[:6, :6] = config.initial_pose_cov
+    if use_bias:
+        P0[B_IDX, B_IDX] = config.gyro_bias_sigma**2 * np.eye(3)
+    st = _State(
+        T=np.eye(4),
+        landmarks=np.zeros((0, 3)),
+        tracks=np.zeros(0, dtype=np.int64),
+        P=P0,
+        bias=np.zeros(3) if use_bias else None,
+    )
+    slot_of = -np.ones(seq.n_tracks, dtype=np.int64)
+    done = np.zeros(seq.n_tracks, dtype=bool)
+    bias_hist = np.zeros((Tn, 3)) if use_bias else None
+
+    for t in range(Tn):
+        t0 = time.perf_counter()
+        if t > 0:
+            _propagate(st, twists[t - 1], dt[t - 1], W, config, off)
+        tracks, z = seq.frame(t)
+        slots = slot_of[tracks]
+        old = slots >= 0
+        n_used, n_rej = _update(st, slots[old], z[old], M, cam_T_imu, V, Vinv, gate, config, off)
+        fresh = (~old) & (~done[tracks])
+        n_init, n_rej_new = _augment(st, tracks[fresh], z[fresh], cal, imu_T_cam, V, config, off, slot_of)
+        if not config.keep_landmarks:
+            _marginalise(st, last_frame, t, off, slot_of, done, est)
+        est.poses[t] = st.T
+        pose_P[t] = st.P[:6, :6]
+        if use_bias:
+            bias_hist[t] = st.bias
+        est.n_updates[t] = n_used
+        est.n_rejected[t] = n_rej + n_rej_new
+        est.n_initialised[t] = n_init
+        est.step_time_s[t] = time.perf_counter() - t0
+        if progress is not None:
+            progress(t + 1)
+
+    # Landmarks still in the state at the end.
+    if st.tracks.size:
+        slots = np.arange(st.tracks.size)
+        est.landmarks[st.tracks] = st.landmarks
+        est.landmark_cov[st.tracks] = landmark_world_cov(st.P, st.landmarks, slots, off)
+    est.pose_cov = left_cov_to_estimate(est.poses, pose_P)
+    est.pose_cov = 0.5 * (est.pose_cov + np.swapaxes(est.pose_cov, -1, -2))
+    if use_bias:
+        est.info["gyro_bias"] = bias_hist[-1].tolist()
+        est.info["gyro_bias_sigma_final"] = np.sqrt(np.diag(st.P[B_IDX, B_IDX])).tolist()
+    return est
+
+
+def _propagate(st: _State, u: np.ndarray, tau: float, W, config: FilterConfig, off: int) -> None:
+    u = np.array(u, dtype=float)
+    if st.bias is not None:
+        u[3:] -= st.bias
+    twist = tau * u
+    B = noise_jacobian(st.T, st.landmarks, twist, st.bias is not None)
+    P = st.P
+    if st.bias is not None:
+        # Imperfect IEKF: the bias error acts as angular-velocity noise -xi_b.
+        F = -tau * B[:, 3:]  # (n, 3)
+        Pb = P[:, B_IDX].copy()
+        Pbb = P[B_IDX, B_IDX].copy()
+        FPb = F @ Pb.T
+        P += FPb + FPb.T + F @ Pbb @ F.T
+        P[B_IDX, B_IDX] += config.gyro_bias_walk**2 * tau * np.eye(3)
+    BL = B @ np.linalg.cholesky(W)
+    P += (tau * tau) * (BL @ BL.T)
+    st.T = st.T @ se3_exp(twist)
+
+
+def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterConfig, off: int):
+    """Stacked update with the frame's observations of landmarks in the state."""
+    k = slots.size
+    if k == 0:
+        return 0, 0
+    R, p = st.T[:3, :3], st.T[:3, 3]
+    C, c_t = cam_T_imu[:3, :3], cam_T_imu[:3, 3]
+    lm = st.landmarks[slots]
+    q = ((lm - p) @ R) @ C.T + c_t  # cam_T_imu T^-1 l
+    disp = z[:, 0] - z[:, 2]
+    valid = (
+        (q[:, 2] > 1e-6)
+        & (q[:, 2] <= config.max_depth)
+        & (disp > 0)
+        & (disp >= config.min_disparity)
+    )
+    n_rej = int(k - valid.sum())
+    if not valid.any():
+        return 0, n_rej
+    slots, z, q = slots[valid], z[valid], q[valid]
+    k = slots.size
+    r = z - project(M, homogeneous(q))
+    A = observation_jacobian(st.T, q, cam_T_imu, M)
+    P = st.P
+    li = off + 3 * slots[:, None] + np.arange(3)  # (k, 3)
+    if gate is not None:
+        Pll = P[li[:, :, None], li[:, None, :]]
+        Plp = P[li, :3]  # (k, 3, 3): rows l, cols p
+        Pe = Pll - Plp - np.swapaxes(Plp, 1, 2) + P[:3, :3]
+        S4 = A @ Pe @ np.swapaxes(A, 1, 2) + V
+        m2 = np.einsum("ki,ki->k", r, np.linalg.solve(S4, r[:, :, None])[:, :, 0])
+        ok = m2 <= gate
+        n_rej += int(k - ok.sum())
+        if not ok.any():
+            return 0, n_rej
+        slots, r, A, li = slots[ok], r[ok], A[ok], li[ok]
+        k = slots.size
+    # Compress each 4-d stereo observation to an equivalent 3-d one on xi_l - xi_p (exact
+    # for the linear-Gaussian update: A has full column rank).
+    AtVi = np.swapaxes(A, 1, 2) @ Vinv  # (k, 3, 4)
+    Lam = AtVi @ A  # information (k, 3, 3)
+    Lam_inv = np.linalg.inv(Lam)
+    y = (Lam_inv @ (AtVi @ r[:, :, None]))[:, :, 0].ravel()  # (3k,)
+    lflat = li.ravel()
+    pflat = np.tile(np.arange(3), k)
+    PHt = P[:, lflat] - P[:, pflat]  # (n, 3k): P E^T
+    S = PHt[lflat] - PHt[pflat]
+    bi = 3 * np.arange(k)[:, None, None] + np.arange(3)[None, :, None]
+    bj = 3 * np.arange(k)[:, None, None] + np.arange(3)[None, None, :]
+    S[bi, bj] += Lam_inv
+    try:
+        L, _ = cho_factor(S, lower=True, check_finite=False)
+    except np.linalg.LinAlgError as exc:
+        raise EstimationError(f"innovation covariance not positive definite: {exc}") from None
+    Wt = solve_triangular(L, PHt.T, lower=True, check_finite=False)  # (3k, n)
+    delta = Wt.T @ solve_triangular(L, y, lower=True, check_finite=False)
+    P -= Wt.T @ Wt
+    st.P = 0.5 * (P + P.T)
+    st.T, st.landmarks, st.bias = retract(st.T, st.landmarks, delta, st.bias)
+    return k, n_rej
+
+
+def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off, slot_of):
+    """Add triangulated landmarks of tracks seen for the first time (or never accepted yet)."""
+    k = tracks.size
+    if k == 0:
+        return 0, 0
+    disp = z[:, 0] - z[:, 2]
+    ok = (disp > 0) & (disp >= config.min_disparity)
+    pc, Jt = triangulate_with_jacobian(np.where(ok[:, None], z, [1.0, 0.0, 0.0, 0.0]), cal.K, cal.baseline)
+    ok &= np.isfinite(pc).all(axis=1) & (pc[:, 2] > 0) & (pc[:, 2] <= config.max_depth)
+    n_rej = int(k - ok.sum())
+    if not ok.any():
+        return 0, n_rej
+    tracks, pc, Jt = tracks[ok], pc[ok], Jt[ok]
+    k = tracks.size
+    R, p = st.T[:3, :3], st.T[:3, 3]
+    c = pc @ imu_T_cam[:3, :3].T + imu_T_cam[:3, 3]
+    lm_new = c @ R.T + p
+    Gz = augmentation_jacobians(st.T, Jt, imu_T_cam)
+    Cn = Gz @ V @ np.swapaxes(Gz, 1, 2)
+    P = st.P
+    n = P.shape[0]
+    Pn = np.empty((n + 3 * k, n + 3 * k))
+    Pn[:n, :n] = P
+    cross = np.tile(P[:, :3], (1, k))  # xi_l = xi_p + noise
+    Pn[:n, n:] = cross
+    Pn[n:, :n] = cross.T
+    Pn[n:, n:] = np.tile(P[:3, :3], (k, k))
+    bi = n + 3 * np.arange(k)[:, None, None] + np.arange(3)[None, :, None]
+    bj = n + 3 * np.arange(k)[:, None, None] + np.arange(3)[None, None, :]
+    Pn[bi, bj] += Cn
+    K0 = st.tracks.size
+    st.P = Pn
+    st.landmarks = np.vstack([st.landmarks, lm_new])
+    st.tracks = np.concatenate([st.tracks, tracks])
+    slot_of[tracks] = K0 + np.arange(k)
+    return k, n_rej
+
+
+def _marginalise(st: _State, last_frame, t, off, slot_of, done, est: Estimate) -> None:
+    """Drop landmarks whose track ended at frame ``t``; keep their mean and world covariance."""
+    if st.tracks.size == 0:
+        return
+    ended = last_frame[st.tracks] <= t
+    if not ended.any():
+        return
+    gone = np.flatnonzero(ended)
+    keep = np.flatnonzero(~ended)
+    tr = st.tracks[gone]
+    est.landmarks[tr] = st.landmarks[gone]
+    est.landmark_cov[tr] = landmark_world_cov(st.P, st.landmarks[gone], gone, off)
+    done[tr] = True
+    slot_of[tr] = -1
+    idx = np.concatenate([np.arange(off), (off + 3 * keep[:, None] + np.arange(3)).ravel()])
+    st.P = st.P[np.ix_(idx, idx)]
+    st.landmarks = st.landmarks[keep]
+    st.tracks = st.tracks[keep]
+    slot_of[st.tracks] = np.arange(keep.size)
