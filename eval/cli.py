@@ -24,7 +24,10 @@ COMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="vislam", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="vislam",
+        description="Visual-inertial SLAM: EKF variants cross-validated against a GTSAM smoother.",
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
