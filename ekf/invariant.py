@@ -48,7 +48,8 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.linalg import cho_factor, solve_triangular
+from scipy.linalg.blas import dtrsm
+from scipy.linalg.lapack import dpotrf
 from scipy.stats import chi2
 
 from ekf.camera import dpi_dq, project, triangulate_with_jacobian
@@ -61,9 +62,6 @@ from ekf.geometry import (
     curly_hat,
     hat,
     homogeneous,
-    se3_exp,
-    so3_exp,
-    so3_left_jacobian,
 )
 from ekf.sequence import Sequence
 
@@ -100,6 +98,29 @@ def se3_left_jacobian(xi: np.ndarray, terms: int = 14) -> np.ndarray:
     return out
 
 
+def _so3_exp_and_jl(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``so3_exp(phi)`` and ``so3_left_jacobian(phi)`` of one vector, without batch overhead."""
+    th2 = float(phi @ phi)
+    W = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
+    W2 = W @ W
+    if th2 < 1e-12:
+        a, b, c = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        th = np.sqrt(th2)
+        s, co = np.sin(th), np.cos(th)
+        a, b, c = s / th, (1.0 - co) / th2, (th - s) / (th2 * th)
+    I = np.eye(3)
+    return I + a * W + b * W2, I + b * W + c * W2
+
+
+def _se3_exp_one(xi: np.ndarray) -> np.ndarray:
+    R, J = _so3_exp_and_jl(xi[3:])
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = J @ xi[:3]
+    return T
+
+
 def retract(
     T: np.ndarray, landmarks: np.ndarray, delta: np.ndarray, gyro_bias: np.ndarray | None = None
 ):
@@ -108,9 +129,7 @@ def retract(
     ``delta`` is ordered as the error state. Returns ``(T, landmarks, gyro_bias)``.
     """
     delta = np.asarray(delta, dtype=float)
-    phi = delta[R_IDX]
-    Rd = so3_exp(phi)
-    J = so3_left_jacobian(phi)
+    Rd, J = _so3_exp_and_jl(delta[R_IDX])
     off = landmark_offset(gyro_bias is not None)
     T_new = np.eye(4)
     T_new[:3, :3] = Rd @ T[:3, :3]
@@ -282,7 +301,7 @@ def _run(seq: Sequence, config: FilterConfig, progress) -> Estimate:
     imu_T_cam = cal.imu_T_cam
     V = config.pixel_cov
     Vinv = np.linalg.inv(V)
-    W = config.velocity_cov
+    W_chol = np.linalg.cholesky(config.velocity_cov)
     use_bias = bool(config.gyro_bias)
     off = landmark_offset(use_bias)
     gate = None if config.gate_probability is None else chi2.ppf(config.gate_probability, 4)
@@ -312,7 +331,7 @@ def _run(seq: Sequence, config: FilterConfig, progress) -> Estimate:
     for t in range(Tn):
         t0 = time.perf_counter()
         if t > 0:
-            _propagate(st, twists[t - 1], dt[t - 1], W, config, off)
+            _propagate(st, twists[t - 1], dt[t - 1], W_chol, config, off)
         tracks, z = seq.frame(t)
         slots = slot_of[tracks]
         old = slots >= 0
@@ -345,7 +364,7 @@ def _run(seq: Sequence, config: FilterConfig, progress) -> Estimate:
     return est
 
 
-def _propagate(st: _State, u: np.ndarray, tau: float, W, config: FilterConfig, off: int) -> None:
+def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConfig, off: int) -> None:
     u = np.array(u, dtype=float)
     if st.bias is not None:
         u[3:] -= st.bias
@@ -360,9 +379,9 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W, config: FilterConfig, o
         FPb = F @ Pb.T
         P += FPb + FPb.T + F @ Pbb @ F.T
         P[B_IDX, B_IDX] += config.gyro_bias_walk**2 * tau * np.eye(3)
-    BL = B @ np.linalg.cholesky(W)
-    P += (tau * tau) * (BL @ BL.T)
-    st.T = st.T @ se3_exp(twist)
+    BL = tau * (B @ W_chol)
+    P += BL @ BL.T
+    st.T = st.T @ _se3_exp_one(twist)
 
 
 def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterConfig, off: int):
@@ -409,20 +428,17 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
     Lam_inv = np.linalg.inv(Lam)
     y = (Lam_inv @ (AtVi @ r[:, :, None]))[:, :, 0].ravel()  # (3k,)
     lflat = li.ravel()
-    pflat = np.tile(np.arange(3), k)
-    PHt = P[:, lflat] - P[:, pflat]  # (n, 3k): P E^T
-    S = PHt[lflat] - PHt[pflat]
-    bi = 3 * np.arange(k)[:, None, None] + np.arange(3)[None, :, None]
-    bj = 3 * np.arange(k)[:, None, None] + np.arange(3)[None, None, :]
-    S[bi, bj] += Lam_inv
-    try:
-        L, _ = cho_factor(S, lower=True, check_finite=False)
-    except np.linalg.LinAlgError as exc:
-        raise EstimationError(f"innovation covariance not positive definite: {exc}") from None
-    Wt = solve_triangular(L, PHt.T, lower=True, check_finite=False)  # (3k, n)
-    delta = Wt.T @ solve_triangular(L, y, lower=True, check_finite=False)
-    P -= Wt.T @ Wt
-    st.P = 0.5 * (P + P.T)
+    n = P.shape[0]
+    PHt = (P.take(lflat, axis=1).reshape(n, k, 3) - P[:, None, :3]).reshape(n, 3 * k)  # P E^T
+    S = (PHt.take(lflat, axis=0).reshape(k, 3, 3 * k) - PHt[None, :3, :]).reshape(3 * k, 3 * k)
+    S.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :] += Lam_inv
+    L, info = dpotrf(S, lower=1, clean=0, overwrite_a=1)
+    if info != 0:
+        raise EstimationError(f"innovation covariance of {k} observations not positive definite")
+    Wt = dtrsm(1.0, L, PHt.T, lower=1)  # L^-1 E P, (3k, n)
+    delta = Wt.T @ dtrsm(1.0, L, y[:, None], lower=1)[:, 0]
+    # P - K S K^T = P - (L^-1 E P)^T (L^-1 E P); a^T a is computed symmetric (syrk).
+    st.P = P - Wt.T @ Wt
     st.T, st.landmarks, st.bias = retract(st.T, st.landmarks, delta, st.bias)
     return k, n_rej
 
@@ -480,7 +496,7 @@ def _marginalise(st: _State, last_frame, t, off, slot_of, done, est: Estimate) -
     done[tr] = True
     slot_of[tr] = -1
     idx = np.concatenate([np.arange(off), (off + 3 * keep[:, None] + np.arange(3)).ravel()])
-    st.P = st.P[np.ix_(idx, idx)]
+    st.P = st.P.take(idx, axis=0).take(idx, axis=1)
     st.landmarks = st.landmarks[keep]
     st.tracks = st.tracks[keep]
     slot_of[st.tracks] = np.arange(keep.size)
