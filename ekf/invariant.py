@@ -365,6 +365,8 @@ def _run(seq: Sequence, config: FilterConfig, progress) -> Estimate:
 
 
 def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConfig, off: int) -> None:
+    """Paper eq. 11 in group form: ``T <- T exp(tau u)``; ``P <- P + tau^2 B W B^T`` (the error
+    transition is the identity), plus the bias coupling with a gyro-bias state."""
     u = np.array(u, dtype=float)
     if st.bias is not None:
         u[3:] -= st.bias
@@ -385,7 +387,8 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConf
 
 
 def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterConfig, off: int):
-    """Stacked update with the frame's observations of landmarks in the state."""
+    """Stacked update (paper eq. 14 in group form: ``X <- exp(K r) X``) with the frame's
+    observations of landmarks already in the state; returns (used, rejected)."""
     k = slots.size
     if k == 0:
         return 0, 0

@@ -370,3 +370,18 @@ def test_progress_is_called_per_frame():
     seen = []
     inv.run_invariant(seq, SIM_CONFIG, progress=seen.append)
     assert seen == list(range(1, 13))
+
+
+def test_clean_tracks_runs_and_reports_the_cleaned_track_origin():
+    pytest.importorskip("ekf.cleaning")
+    seq, poses, _ = simulate(17, n_frames=40, noise=False)
+    est = inv.run_invariant(seq, SIM_CONFIG.replace(clean_tracks=True))
+    assert est.info["clean_tracks_applied"] is True
+    assert len(est.info["track_origin"]) == est.landmarks.shape[0]
+    ate = np.sqrt(np.mean(np.sum((est.positions - poses[:, :3, 3]) ** 2, axis=1)))
+    assert ate < 0.01
+
+
+def test_registered_in_the_estimator_registry():
+    estimators = pytest.importorskip("ekf.estimators")
+    assert estimators.ESTIMATORS["ekf-invariant"] is inv.run_invariant
