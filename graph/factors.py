@@ -28,6 +28,7 @@ from ekf.config import FilterConfig
 from ekf.conventions import estimate_cov_to_gtsam
 from ekf.geometry import se3_exp, se3_inv
 from ekf.sequence import Calibration, Sequence
+from graph.gyro_bias import BIAS_KEY, GyroBiasModel, biased_motion_factor, corrected_deltas
 from graph.pose_conversions import L, X, expmap_right_jacobian, to_pose3, twist_to_gtsam
 from graph.settings import SmootherSettings
 
@@ -211,14 +212,20 @@ class GraphProblem:
 
 
 def build_graph(poses: np.ndarray, landmarks: np.ndarray, rows: StereoRows,
-                deltas: np.ndarray, noise: NoiseModels) -> GraphProblem:
+                deltas: np.ndarray, noise: NoiseModels, bias: GyroBiasModel | None = None) -> GraphProblem:
     """The full batch graph: prior, motion, stereo and landmark-prior factors, with initial
-    values ``poses`` (T, 4, 4) and ``landmarks`` (n_tracks, 3) (only the tracks in ``rows``)."""
+    values ``poses`` (T, 4, 4) and ``landmarks`` (n_tracks, 3) (only the tracks in ``rows``).
+
+    With ``bias`` the motion factors share one gyro-bias variable (:mod:`graph.gyro_bias`),
+    which gets a zero-mean prior and is added last (factor and value)."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), noise.pose_prior))
     for k, delta in enumerate(deltas):
-        graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), to_pose3(delta), noise.motion[k]))
+        if bias is None:
+            graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), to_pose3(delta), noise.motion[k]))
+        else:
+            graph.add(biased_motion_factor(X(k), X(k + 1), BIAS_KEY, delta, bias.D[k], noise.motion[k]))
     for k, T in enumerate(poses):
         values.insert(X(k), to_pose3(T))
     measured = rows.measured
@@ -229,6 +236,9 @@ def build_graph(poses: np.ndarray, landmarks: np.ndarray, rows: StereoRows,
         p = landmarks[j]
         values.insert(L(int(j)), p)
         graph.add(gtsam.PriorFactorPoint3(L(int(j)), p, noise.landmark_prior))
+    if bias is not None:
+        values.insert(BIAS_KEY, np.asarray(bias.initial, dtype=float))
+        graph.add(gtsam.PriorFactorPoint3(BIAS_KEY, np.zeros(3), bias.prior))
     return GraphProblem(graph, values, rows, tracks)
 
 
@@ -241,3 +251,22 @@ def landmarks_from_values(values: gtsam.Values, tracks: np.ndarray, n_tracks: in
     for j in tracks:
         out[j] = values.atPoint3(L(int(j)))
     return out
+
+
+def fix_bias(problem: GraphProblem, values: gtsam.Values, deltas: np.ndarray, noise: NoiseModels,
+             bias: GyroBiasModel) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """The graph of ``problem`` (built with ``bias``) with the bias fixed at its value in
+    ``values``: plain between-factors on the bias-corrected motions, no bias variable. Used for
+    the marginals, which are then conditional on the estimated bias (its uncertainty, about
+    1e-4 rad/s over a drive, is neglected)."""
+    b = values.atPoint3(BIAS_KEY)
+    n_motion = len(deltas)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(problem.graph.at(0))
+    for k, delta in enumerate(corrected_deltas(deltas, bias.D, b)):
+        graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), to_pose3(delta), noise.motion[k]))
+    for i in range(1 + n_motion, problem.graph.size() - 1):  # stereo, landmark priors; not the bias prior
+        graph.add(problem.graph.at(i))
+    fixed = gtsam.Values(values)
+    fixed.erase(BIAS_KEY)
+    return graph, fixed

@@ -38,6 +38,9 @@ class SmootherSettings:
     #: Cheirality margin: a landmark closer than this (m) to, or behind, any of its cameras is
     #: dropped (GTSAM's stereo factor returns a constant residual with a zero Jacobian there).
     min_depth: float = 0.1
+    #: Estimate one constant gyro bias shared by all motion factors (graph.gyro_bias); its
+    #: zero-mean prior has FilterConfig.gyro_bias_sigma.
+    gyro_bias: bool = True
     #: Compute the pose and landmark marginal covariances.
     compute_marginals: bool = True
     #: iSAM2 relinearisation threshold and skip.

@@ -32,6 +32,8 @@ from graph.factors import (
     build_graph,
     cheirality_ok,
     dead_reckoning,
+    fix_bias,
+    interval_twists,
     keep_multi_observed,
     landmarks_from_values,
     poses_from_values,
@@ -40,6 +42,7 @@ from graph.factors import (
     triangulate_landmarks,
     usable_rows,
 )
+from graph.gyro_bias import BIAS_KEY, GyroBiasModel
 from graph.inputs import prepare_sequence
 from graph.marginals import batch_marginals
 from graph.pose_conversions import estimation_error
@@ -153,7 +156,11 @@ def run_smoother(
 
     tick = time.perf_counter()
     noise = NoiseModels.create(cleaned, config, settings, motion_covs)
-    problem = build_graph(poses0, landmarks0, rows, deltas, noise)
+    bias = None
+    if settings.gyro_bias:
+        twists, tau = interval_twists(cleaned, config.velocity_pairing)
+        bias = GyroBiasModel.create(twists, tau, config.gyro_bias_sigma)
+    problem = build_graph(poses0, landmarks0, rows, deltas, noise, bias)
     timing["build_s"] += time.perf_counter() - tick
 
     iterations: list[int] = []
@@ -183,7 +190,9 @@ def run_smoother(
         n_outliers += int(np.sum(~final_keep))
         rejected += np.bincount(rows.frame[~final_keep], minlength=T)
         rows = rows.subset(final_keep)
-        problem = build_graph(poses, landmarks, rows, deltas, noise)
+        if bias is not None:
+            bias.initial = np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
+        problem = build_graph(poses, landmarks, rows, deltas, noise, bias)
         timing["build_s"] += time.perf_counter() - tick
     report(3, 4)
 
@@ -192,9 +201,11 @@ def run_smoother(
     est = Estimate.empty("smoother", cleaned.timestamps, M)
     est.poses = poses
     est.landmarks = landmarks
+    gyro_bias = None if bias is None else np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
     if settings.compute_marginals:
         tick = time.perf_counter()
-        est.pose_cov, est.landmark_cov = batch_marginals(problem.graph, values, T, problem.landmark_tracks, M)
+        graph, solution = (problem.graph, values) if bias is None else fix_bias(problem, values, deltas, noise, bias)
+        est.pose_cov, est.landmark_cov = batch_marginals(graph, solution, T, problem.landmark_tracks, M)
         timing["marginals_s"] = time.perf_counter() - tick
     report(4, 4)
 
@@ -213,6 +224,7 @@ def run_smoother(
         "iterations_per_round": iterations,
         "initial_error": errors[0][0],
         "final_error": errors[-1][1],
+        "gyro_bias": None if gyro_bias is None else gyro_bias.tolist(),
         "n_landmarks": int(problem.landmark_tracks.size),
         "n_stereo_factors": int(len(rows)),
         "n_outliers_removed": n_outliers,

@@ -1,0 +1,118 @@
+"""A constant gyro bias shared by every motion factor of the batch smoother.
+
+The shared drives' angular velocities carry constant offsets of 0.005-0.01 rad/s per axis
+(DESIGN.md). Where vision constrains consecutive poses that hardly matters, but at the drives'
+"repeat events" one interval has no visual constraint and only the velocity spans it; the
+offsets then add up to a systematic heading drift. The smoother therefore estimates one bias
+``b`` (rad/s, body frame) jointly with the poses.
+
+Model (paper eq. 11 with the bias removed from the measured twist): the interval ``[k, k+1]``
+moves by ``exp(tau (u - [0; b]))`` (translation-first twist). To first order in ``b``
+
+    exp(tau u - tau [0; b]) ~= exp(tau u) Exp(-D_k b),   D_k = tau J_r(tau u)[:, rotation]
+
+in GTSAM's rotation-first right perturbation (``J_r`` = ``Pose3.ExpmapDerivative``), exactly as
+IMU preintegration corrects for a bias change. The factor's error is
+
+    e = Log(P_k^-1 x_k^-1 x_{k+1}),   P_k = Delta_k Exp(-D_k b),
+
+with the covariance of the plain between-factor, and analytic Jacobians (tested against
+numerical derivatives in tests/test_graph_gyro_bias.py):
+
+    de/dx_k     = -J_r^-1(e) Ad(B^-1),        B = x_k^-1 x_{k+1}
+    de/dx_{k+1} =  J_r^-1(e)
+    de/db       =  J_r^-1(e) Ad(R^-1) J_r(-D_k b) D_k,   R = P_k^-1 B.
+
+The factor is a ``gtsam.CustomFactor`` (a Python callback, about 0.1 ms per evaluation; one
+per interval, so well under the cost of a linear solve).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import B
+
+from graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
+
+#: The one bias variable (a ``Point3``: rad/s, body frame).
+BIAS_KEY = B(0)
+
+
+def bias_jacobians(twists: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """``D_k`` (T-1, 6, 3): how a gyro bias moves each interval's relative pose (module docstring).
+
+    ``twists`` (T-1, 6) translation first, ``tau`` (T-1,) seconds."""
+    xi_g = twist_to_gtsam(tau[:, None] * twists)
+    D = np.empty((len(tau), 6, 3))
+    for k in range(len(tau)):
+        D[k] = tau[k] * expmap_right_jacobian(xi_g[k])[:, :3]
+    return D
+
+
+def corrected_delta(delta: gtsam.Pose3, D: np.ndarray, bias: np.ndarray) -> gtsam.Pose3:
+    """``P = Delta Exp(-D b)``: the relative motion with the bias removed."""
+    return delta.compose(gtsam.Pose3.Expmap(-D @ np.asarray(bias, dtype=float)))
+
+
+def corrected_deltas(deltas: np.ndarray, D: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """All relative motions (T-1, 4, 4) with the bias ``b`` removed."""
+    return np.stack([corrected_delta(to_pose3(d), Dk, bias).matrix() for d, Dk in zip(deltas, D)]) \
+        if len(deltas) else np.zeros((0, 4, 4))
+
+
+def biased_motion_error(delta: gtsam.Pose3, D: np.ndarray, x0: gtsam.Pose3, x1: gtsam.Pose3,
+                        bias: np.ndarray, H: list | None = None) -> np.ndarray:
+    """The factor's error (6,) and, when ``H`` is a list, its three Jacobians appended to it
+    (wrt ``x0``, ``x1`` and ``bias``; 6x6, 6x6, 6x3)."""
+    Db = D @ bias
+    P = delta.compose(gtsam.Pose3.Expmap(-Db))
+    between = x0.between(x1)
+    R = P.between(between)
+    e = gtsam.Pose3.Logmap(R)
+    if H is not None:
+        J_log = gtsam.Pose3.LogmapDerivative(e)
+        H.append(-J_log @ between.inverse().AdjointMap())
+        H.append(J_log)
+        H.append(J_log @ R.inverse().AdjointMap() @ gtsam.Pose3.ExpmapDerivative(-Db) @ D)
+    return e
+
+
+def biased_motion_factor(k0: int, k1: int, bias_key: int, delta: np.ndarray, D: np.ndarray,
+                         noise: gtsam.noiseModel.Base) -> gtsam.CustomFactor:
+    """A ``CustomFactor`` on (``k0``, ``k1``, ``bias_key``) for the relative motion ``delta``
+    (4x4) with bias Jacobian ``D`` (6x3)."""
+    measured = to_pose3(delta)
+    D = np.ascontiguousarray(D, dtype=float)
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, jacobians) -> np.ndarray:
+        keys = this.keys()
+        x0 = values.atPose3(keys[0])
+        x1 = values.atPose3(keys[1])
+        b = values.atPoint3(keys[2])
+        if jacobians is None:
+            return biased_motion_error(measured, D, x0, x1, b)
+        H: list = []
+        e = biased_motion_error(measured, D, x0, x1, b, H)
+        jacobians[0], jacobians[1], jacobians[2] = H
+        return e
+
+    return gtsam.CustomFactor(noise, [int(k0), int(k1), int(bias_key)], error)
+
+
+@dataclass
+class GyroBiasModel:
+    """What the graph needs to estimate the bias: ``D`` (T-1, 6, 3) per interval, the bias
+    prior (zero mean) and the initial value."""
+
+    D: np.ndarray
+    prior: gtsam.noiseModel.Base
+    initial: np.ndarray
+
+    @classmethod
+    def create(cls, twists: np.ndarray, tau: np.ndarray, prior_sigma: float,
+               initial: np.ndarray | None = None) -> "GyroBiasModel":
+        return cls(bias_jacobians(twists, tau), gtsam.noiseModel.Isotropic.Sigma(3, float(prior_sigma)),
+                   np.zeros(3) if initial is None else np.asarray(initial, dtype=float))
