@@ -62,6 +62,8 @@ from ekf.geometry import (
     curly_hat,
     hat,
     homogeneous,
+    so3_left_jacobian_inv,
+    so3_log,
 )
 from ekf.sequence import Sequence
 
@@ -149,8 +151,6 @@ def error_between(
     b_est: np.ndarray | None = None,
 ) -> np.ndarray:
     """The exact error ``xi = log(X_true X_est^-1)`` (the inverse of :func:`retract`)."""
-    from ekf.geometry import so3_left_jacobian_inv, so3_log
-
     Rd = T_true[:3, :3] @ T_est[:3, :3].T
     phi = so3_log(Rd)
     Jinv = so3_left_jacobian_inv(phi)
