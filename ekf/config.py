@@ -25,6 +25,10 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 #: Which velocity sample covers the interval [k, k+1].
 VELOCITY_PAIRINGS = ("current", "next", "mean")
 
+#: How the joint EKF linearises (ekf/joint.py): "standard" (textbook EKF), "fej" (first-estimates
+#: Jacobians) or "oc" (observability-constrained: the gauge nullspace is kept consistent).
+JOINT_LINEARISATIONS = ("standard", "fej", "oc")
+
 
 @dataclass(frozen=True)
 class FilterConfig:
@@ -56,6 +60,8 @@ class FilterConfig:
     #: Initial gyro-bias standard deviation (rad/s) and its random walk (rad/s/sqrt(s)).
     gyro_bias_sigma: float = 0.01
     gyro_bias_walk: float = 1e-4
+    #: Linearisation of ekf-joint: "standard", "fej" or "oc" (see ekf/joint.py).
+    joint_linearisation: str = "oc"
     #: Threads BLAS may use in the hot loop (1: small matrices run fastest single-threaded).
     blas_threads: int = 1
 
@@ -85,6 +91,11 @@ class FilterConfig:
             raise InputError(
                 f"setting 'velocity_pairing' must be one of {VELOCITY_PAIRINGS}, "
                 f"got {self.velocity_pairing!r}"
+            )
+        if self.joint_linearisation not in JOINT_LINEARISATIONS:
+            raise InputError(
+                f"setting 'joint_linearisation' must be one of {JOINT_LINEARISATIONS}, "
+                f"got {self.joint_linearisation!r}"
             )
         if int(self.blas_threads) < 1:
             raise InputError(f"setting 'blas_threads' must be >= 1, got {self.blas_threads!r}")

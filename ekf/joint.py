@@ -25,6 +25,7 @@ from scipy.linalg import cholesky, solve_triangular
 from ekf.config import FilterConfig
 from ekf.errors import EstimationError
 from ekf.estimate import Estimate
+from ekf.geometry import adjoint, hat
 from ekf.prediction import (
     se3_exp_single,
     bias_transition,
@@ -60,6 +61,8 @@ class JointState:
         if config.gyro_bias:
             self.P[6:, 6:] = config.gyro_bias_sigma**2 * np.eye(3)
         self.lm_mean = np.zeros((0, 3))
+        self.lm_first = np.zeros((0, 3))  # first estimates (FEJ linearisation points)
+        self.linearisation = config.joint_linearisation
         self.lm_track = np.zeros(0, dtype=np.int64)
         self.slot = -np.ones(n_tracks, dtype=np.int64)
         self.ever = np.zeros(n_tracks, dtype=bool)
@@ -106,14 +109,24 @@ class JointState:
         m = self.lm_mean[slots]
         q = model.camera_points(self.U, m)
         ok = model.valid_predictions(q)
+        fej = self.linearisation == "fej"
+        if fej:  # Jacobians at the landmarks' first estimates (FEJ), residuals at the current ones
+            m_lin = self.lm_first[slots]
+            q_lin = model.camera_points(self.U, m_lin)
+            ok &= model.valid_predictions(q_lin)
         if not np.all(ok):
             slots, m, q, z = slots[ok], m[ok], q[ok], z[ok]
+            if fej:
+                m_lin, q_lin = m_lin[ok], q_lin[ok]
         k = slots.size
         if k == 0:
             return 0, int(tracks.size)
         P = self.P
         N = P.shape[0]
-        Hp, Hm = model.jacobians(self.U, m, q, reduced=True)  # (k,3,6), (k,3,3)
+        if fej:
+            Hp, Hm = model.jacobians(self.U, m_lin, q_lin, reduced=True)
+        else:
+            Hp, Hm = model.jacobians(self.U, m, q, reduced=True)  # (k,3,6), (k,3,3)
         rows = self.landmark_rows(slots)  # (k,3)
         # P H^T (N, 3k), using the sparsity of H: 6 pose columns + 3 landmark columns per row.
         PHt = P[:, :6] @ Hp.reshape(3 * k, 6).T
@@ -147,10 +160,15 @@ class JointState:
         dx = Y.T @ e  # = K r
         P -= Y.T @ Y  # = P - K S K^T
         self.P = 0.5 * (P + P.T)
-        self.U = se3_exp_single(dx[:6]) @ self.U  # paper eq. 14: mu <- exp((K r)^) mu
+        E = se3_exp_single(dx[:6])
+        R_prior = self.U[:3, :3].copy()
+        self.U = E @ self.U  # paper eq. 14: mu <- exp((K r)^) mu
         if self.core == 9:
             self.bias = self.bias + dx[6:9]
-        self.lm_mean = self.lm_mean + dx[self.core :].reshape(-1, 3)
+        dm = dx[self.core :].reshape(-1, 3)
+        self.lm_mean = self.lm_mean + dm
+        if self.linearisation != "standard":
+            gauge_transport(self.P, self.core, E, R_prior, dm if self.linearisation == "oc" else None)
         return a, int(tracks.size) - a
 
     # --- landmark initialisation and marginalisation ------------------------------------
@@ -189,6 +207,7 @@ class JointState:
         self.P = P
         first = self.n_landmarks
         self.lm_mean = np.concatenate([self.lm_mean, m])
+        self.lm_first = np.concatenate([self.lm_first, m])
         self.lm_track = np.concatenate([self.lm_track, tracks[add]])
         self.slot[tracks[add]] = first + np.arange(n)
 
@@ -211,6 +230,7 @@ class JointState:
         self.P = self.P[np.ix_(ix, ix)]
         self.slot[tracks] = -1
         self.lm_mean = self.lm_mean[keep_lm]
+        self.lm_first = self.lm_first[keep_lm]
         self.lm_track = self.lm_track[keep_lm]
         self.slot[self.lm_track] = np.arange(self.n_landmarks)
 
@@ -220,6 +240,53 @@ class JointState:
             slots = np.arange(self.n_landmarks)
             self.map_mean[self.lm_track] = self.lm_mean
             self.map_cov[self.lm_track] = self.landmark_covs(slots)
+
+
+def gauge_nullspace(U: np.ndarray, m: np.ndarray, core: int = 6) -> np.ndarray:
+    """The unobservable directions (``core + 3n``, 6) of the joint state at ``(U, m)``.
+
+    A global change of world frame ``g = exp(xi^)`` (``xi = [v; w]`` in the world) maps
+    ``U -> U g^-1`` and ``m -> g m`` and leaves every measurement unchanged. To first order the
+    pose's left perturbation moves by ``d = -Ad(U) xi`` and each landmark by
+    ``[I, -m^] xi``; bias rows (``core == 9``) are zero. Without gravity all 6 are unobservable.
+    """
+    n = m.shape[0]
+    N = np.zeros((core + 3 * n, 6))
+    N[:6] = -adjoint(U)
+    blk = N[core:].reshape(n, 3, 6)
+    blk[:, :, :3] = np.eye(3)
+    blk[:, :, 3:] = -hat(m)
+    return N
+
+
+def gauge_transport(
+    P: np.ndarray, core: int, E: np.ndarray, R_prior: np.ndarray, dm: np.ndarray | None
+) -> None:
+    """Observability-constrained correction of ``P`` after an update (in place).
+
+    The standard EKF propagates its error with ``F = Ad(exp(-tau u^))``, which maps the gauge
+    nullspace at ``U`` to the one at ``exp(-tau u^) U`` (:func:`gauge_nullspace`); but the update
+    moves the estimate from the prior ``(U-, m-)`` to ``(E U-, m- + dm)``, so the nullspace the
+    filter carries no longer matches the point where the next Jacobians are evaluated, and
+    the filter gains spurious information along the unobservable directions (Huang et al.
+    2010; Hesch et al. 2014). Here the error is mapped by ``T`` with
+    ``T N(U-, m-) = N(E U-, m- + dm)``: ``T = [[Ad(E), 0], [C, I]]``,
+    ``C_j = [0, dm_j^ R_prior^T]`` (``P <- T P T^T``). For the pose block this is the unique
+    solution (the FEJ transition evaluated at the prior estimate); ``dm = None`` maps the pose
+    only (FEJ, landmark nullspace rows stay at first estimates). With it, the exact Jacobians
+    at the current estimate satisfy ``H N = 0`` at every step, the prediction ``F N(U) =
+    N(F-predicted U)`` and the initialisation ``J_d N_pose = N_landmark`` as well.
+    """
+    A = adjoint(E)
+    if dm is not None and dm.size:
+        n = dm.shape[0]
+        C = np.zeros((n, 3, 6))
+        C[:, :, 3:] = hat(dm) @ R_prior.T
+        C = C.reshape(3 * n, 6)
+        P[core:] += C @ P[:6]
+        P[:, core:] += P[:, :6] @ C.T
+    P[:6] = A @ P[:6]
+    P[:, :6] = P[:, :6] @ A.T
 
 
 def run_joint(

@@ -197,3 +197,87 @@ def test_se3_exp_single_matches_geometry():
     for scale in (1e-9, 1e-4, 0.3, 2.0):
         xi = rng.normal(size=6) * scale
         np.testing.assert_allclose(se3_exp_single(xi), batched(xi), atol=1e-14, rtol=1e-12)
+
+
+# --- the gauge nullspace of the joint EKF (observability-constrained / FEJ linearisation) ---
+
+
+def _gauge(seed=1):
+    rng = np.random.default_rng(seed)
+    return se3_exp(rng.normal(size=6) * [2, 2, 1, 0.1, 0.1, 0.4]), rng.normal(size=6)
+
+
+def test_gauge_nullspace_is_the_derivative_of_an_invisible_change_of_world():
+    from ekf.joint import gauge_nullspace
+
+    model = _model()
+    U, m = _scene(seed=3)
+    g, _ = _gauge()
+    # A finite change of world frame leaves every pixel unchanged ...
+    gm = m @ g[:3, :3].T + g[:3, 3]
+    assert np.allclose(_pixels(model, U @ se3_inv(g), gm), _pixels(model, U, m), atol=1e-8)
+    # ... and N xi is its first-order effect on [d, m] (left perturbation of U).
+    xi = np.random.default_rng(5).normal(size=6)
+
+    def state(eps):
+        ge = se3_exp(eps * xi)
+        d = se3_log((U @ se3_inv(ge)) @ se3_inv(U))
+        return np.concatenate([d, (m @ ge[:3, :3].T + ge[:3, 3]).ravel()])
+
+    num = (state(1e-6) - state(-1e-6)) / 2e-6
+    assert np.allclose(num, gauge_nullspace(U, m) @ xi, atol=1e-5)
+
+
+@pytest.mark.parametrize("reduced", [False, True])
+def test_measurement_jacobians_annihilate_the_nullspace(reduced):
+    from ekf.joint import gauge_nullspace
+
+    model = _model()
+    U, m = _scene(seed=4, n=5)
+    q = model.camera_points(U, m)
+    Hp, Hm = model.jacobians(U, m, q, reduced=reduced)
+    n, r = m.shape[0], Hp.shape[1]
+    H = np.zeros((n * r, 6 + 3 * n))
+    for j in range(n):
+        H[j * r : (j + 1) * r, :6] = Hp[j]
+        H[j * r : (j + 1) * r, 6 + 3 * j : 9 + 3 * j] = Hm[j]
+    N = gauge_nullspace(U, m)
+    assert np.abs(H @ N).max() < 1e-8 * np.abs(H).max() * np.abs(N).max()
+
+
+def test_prediction_and_initialisation_map_the_nullspace():
+    from ekf.joint import gauge_nullspace
+
+    model = _model()
+    U, _ = _scene(seed=6)
+    tau, u = 0.1, np.array([8.0, 0.2, -0.1, 0.01, -0.02, 0.3])
+    F = prediction_jacobian(tau, u)
+    U1 = predict_mean(U, tau, u)
+    assert np.allclose(F @ gauge_nullspace(U, np.zeros((0, 3))), gauge_nullspace(U1, np.zeros((0, 3))))
+    m_true = _scene(seed=6)[1]
+    z = _pixels(model, U, m_true)
+    m, J_d, _ = model.initialise(U, z)
+    N = gauge_nullspace(U, m)
+    assert np.allclose(J_d @ N[:6], N[6:].reshape(-1, 3, 6), atol=1e-9)
+
+
+@pytest.mark.parametrize("core", [6, 9])
+@pytest.mark.parametrize("with_landmarks", [True, False])
+def test_gauge_transport_maps_prior_nullspace_to_posterior(core, with_landmarks):
+    """OC-EKF: T N(U-, m-) = N(E U-, m- + dm), so P = N N^T maps to N' N'^T; the pose-only
+    transport (FEJ) maps the pose rows and leaves the landmark rows at their first estimates."""
+    from ekf.joint import gauge_nullspace, gauge_transport
+
+    U, m = _scene(seed=7, n=4)
+    rng = np.random.default_rng(8)
+    E = se3_exp(rng.normal(size=6) * [0.3, 0.3, 0.3, 0.02, 0.02, 0.05])
+    dm = rng.normal(size=m.shape) * 0.5
+    N0 = gauge_nullspace(U, m, core)
+    N1 = gauge_nullspace(E @ U, m + dm, core)
+    P = N0 @ N0.T
+    gauge_transport(P, core, E, U[:3, :3], dm if with_landmarks else None)
+    if with_landmarks:
+        assert np.allclose(P, N1 @ N1.T, atol=1e-7 * np.abs(P).max())
+    else:
+        N1[core:] = N0[core:]
+        assert np.allclose(P, N1 @ N1.T, atol=1e-7 * np.abs(P).max())
