@@ -55,8 +55,12 @@ class FilterConfig:
     velocity_pairing: str = "mean"
     #: Keep every landmark in the state (textbook) instead of marginalising ended tracks.
     keep_landmarks: bool = False
-    #: Estimate a constant gyro bias as extra state (joint and invariant variants).
-    gyro_bias: bool = False
+    #: Estimate a constant gyro bias as extra state (ekf-joint and ekf-invariant; the other
+    #: filters cannot observe it). On by default: the shared drives carry constant gyro
+    #: offsets of 0.005-0.01 rad/s (data README, DESIGN.md). Measured: ekf-invariant on 0027
+    #: 6.98 m -> 5.89 m aligned ATE; on simulated drives with and without a bias it changes
+    #: aligned ATE by under 1 mm and pose NEES by under 1 %.
+    gyro_bias: bool = True
     #: Initial gyro-bias standard deviation (rad/s) and its random walk (rad/s/sqrt(s)).
     gyro_bias_sigma: float = 0.01
     gyro_bias_walk: float = 1e-4

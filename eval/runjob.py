@@ -63,7 +63,12 @@ def add_filter_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--no-clean", action="store_true", help="do not split tracks at repeats")
     g.add_argument("--velocity-pairing", choices=VELOCITY_PAIRINGS, help="velocity for [k, k+1]")
     g.add_argument("--keep-landmarks", action="store_true", help="never marginalise landmarks")
-    g.add_argument("--gyro-bias", action="store_true", help="estimate a constant gyro bias")
+    g.add_argument(
+        "--gyro-bias",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="estimate a constant gyro bias (ekf-joint, ekf-invariant; default on)",
+    )
     g.add_argument("--max-depth", type=float, metavar="M", help="reject points beyond this depth")
     g.add_argument("--min-disparity", type=float, metavar="PX", help="reject smaller disparities")
 
@@ -82,8 +87,8 @@ def filter_config_from_args(args: argparse.Namespace) -> FilterConfig:
         changes["clean_tracks"] = False
     if getattr(args, "keep_landmarks", False):
         changes["keep_landmarks"] = True
-    if getattr(args, "gyro_bias", False):
-        changes["gyro_bias"] = True
+    if getattr(args, "gyro_bias", None) is not None:
+        changes["gyro_bias"] = bool(args.gyro_bias)
     return config.replace(**changes) if changes else config
 
 
