@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
+from scipy.linalg.blas import dsyrk
 
 from ekf.config import FilterConfig
 from ekf.errors import EstimationError
@@ -147,7 +148,7 @@ class JointState:
             sel = (3 * np.nonzero(acc)[0][:, None] + _AR3).ravel()
             S = S[np.ix_(sel, sel)]
             PHt = PHt[:, sel]
-        S = 0.5 * (S + S.T)
+        # Only the lower triangle of S is read by the Cholesky factorisation.
         S.reshape(a, 3, a, 3)[np.arange(a), :, np.arange(a), :] += model.R3
         try:
             L = cholesky(S, lower=True, check_finite=False)
@@ -155,11 +156,14 @@ class JointState:
             raise EstimationError(
                 f"joint EKF: innovation covariance of {a} observations is not positive definite"
             ) from exc
-        Y = solve_triangular(L, PHt.T, lower=True, check_finite=False)  # (3a, N)
-        e = solve_triangular(L, r, lower=True, check_finite=False)
+        # One triangular solve for Y = L^-1 (P H^T)^T and e = L^-1 r (r as an extra column).
+        B = np.empty((N + 1, 3 * a))
+        B[:N] = PHt
+        B[N] = r
+        Ye = solve_triangular(L, B.T, lower=True, check_finite=False, overwrite_b=True)
+        Y, e = Ye[:, :N], Ye[:, N]
         dx = Y.T @ e  # = K r
-        P -= Y.T @ Y  # = P - K S K^T
-        self.P = 0.5 * (P + P.T)
+        symmetric_downdate(P, Y)  # P <- P - Y^T Y = P - K S K^T
         E = se3_exp_single(dx[:6])
         R_prior = self.U[:3, :3].copy()
         self.U = E @ self.U  # paper eq. 14: mu <- exp((K r)^) mu
@@ -242,6 +246,16 @@ class JointState:
             self.map_cov[self.lm_track] = self.landmark_covs(slots)
 
 
+def symmetric_downdate(P: np.ndarray, Y: np.ndarray) -> None:
+    """``P <- P - Y^T Y`` in place for a symmetric C-ordered ``P`` (BLAS ``syrk`` on one
+    triangle, then mirrored, so ``P`` stays exactly symmetric)."""
+    n = P.shape[0]
+    Pt = P.T  # Fortran-ordered view: syrk writes into P's memory
+    dsyrk(-1.0, Y, beta=1.0, c=Pt, trans=1, lower=0, overwrite_c=1)
+    # The upper triangle of P.T is P's lower triangle: copy it to P's upper triangle.
+    np.copyto(P, P.T, where=~np.tri(n, n, 0, dtype=bool))
+
+
 def gauge_nullspace(U: np.ndarray, m: np.ndarray, core: int = 6) -> np.ndarray:
     """The unobservable directions (``core + 3n``, 6) of the joint state at ``(U, m)``.
 
@@ -279,12 +293,10 @@ def gauge_transport(
     """
     A = adjoint(E)
     if dm is not None and dm.size:
-        n = dm.shape[0]
-        C = np.zeros((n, 3, 6))
-        C[:, :, 3:] = hat(dm) @ R_prior.T
-        C = C.reshape(3 * n, 6)
-        P[core:] += C @ P[:6]
-        P[:, core:] += P[:, :6] @ C.T
+        n, N = dm.shape[0], P.shape[0]
+        D = hat(dm)  # C_j = [0, D_j R^T]: only the rotation rows of the pose enter
+        P[core:] += (D @ (R_prior.T @ P[3:6])).reshape(3 * n, N)
+        P[:, core:] += (D @ (R_prior.T @ P[:, 3:6].T)).reshape(3 * n, N).T
     P[:6] = A @ P[:6]
     P[:, :6] = P[:, :6] @ A.T
 

@@ -107,7 +107,7 @@ def test_joint_update_matches_dense_kalman_reference(noisy_sim, linearisation):
     from ekf.joint import gauge_transport
 
     seq = noisy_sim.sequence
-    cfg = BASE.replace(gate_probability=None, joint_linearisation=linearisation)
+    cfg = BASE.replace(gate_probability=None, joint_linearisation=linearisation, gyro_bias=False)
     model = StereoModel.from_config(seq.calibration, cfg)
     st = JointState(cfg, seq.n_tracks)
     tracks, z = seq.frame(0)
