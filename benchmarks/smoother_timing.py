@@ -1,14 +1,17 @@
 """Time the GTSAM smoother's stages on data files and score it where ground truth exists.
 
     .venv/bin/python benchmarks/smoother_timing.py FILE.npz [FILE.npz ...] [--init ekf|dead-reckoning|isam2] [--isam2]
+        [--pairing mean|next|current] [--gyro-bias alternate|joint|off]
 
-Prints, per file: the time split (build, initialise, optimise, marginals), LM iterations, and
+Prints, per file: the time split (build, initialise, optimise, marginals), LM iterations, the
+process CPU time and load average (wall times on a shared 2-core machine depend on the load), and
 when ``groundtruth/NAME.txt`` lies beside the file, raw and aligned ATE and KITTI drift.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -50,17 +53,24 @@ def main() -> None:
     parser.add_argument("--init", default="ekf", choices=("ekf", "dead-reckoning", "isam2"))
     parser.add_argument("--isam2", action="store_true", help="time the incremental smoother instead")
     parser.add_argument("--no-clean", action="store_true", help="skip track cleaning")
+    parser.add_argument("--pairing", default="mean", choices=("current", "next", "mean"),
+                        help="which velocity sample covers [k, k+1]")
+    parser.add_argument("--gyro-bias", default="alternate", choices=("alternate", "joint", "off"))
     args = parser.parse_args()
-    config = FilterConfig(clean_tracks=not args.no_clean)
+    config = FilterConfig(clean_tracks=not args.no_clean, velocity_pairing=args.pairing)
+    from graph.settings import SmootherSettings
+
+    settings = SmootherSettings(gyro_bias=args.gyro_bias)
+    print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
     from eval.metrics import trajectory_metrics
     from graph.isam2 import run_isam2
     from graph.smoother import run_smoother
 
     for path in args.files:
         seq = load(path)
-        start = time.perf_counter()
-        est = run_isam2(seq, config) if args.isam2 else run_smoother(seq, config, init=args.init)
-        wall = time.perf_counter() - start
+        start, cpu = time.perf_counter(), time.process_time()
+        est = run_isam2(seq, config) if args.isam2 else run_smoother(seq, config, init=args.init, settings=settings)
+        wall, cpu = time.perf_counter() - start, time.process_time() - cpu
         t = est.info["timing"]
         print(f"{path.name} {est.estimator} init={est.info.get('init', '-')} "
               f"cleaned={est.info['cleaning'].get('cleaned')} frames={est.n_frames} "
@@ -69,6 +79,10 @@ def main() -> None:
               f"+ optimise {t['optimise_s']:.1f} + marginals {t['marginals_s']:.1f} s; "
               f"LM iterations {est.info.get('iterations_per_round', '-')}, "
               f"outliers removed {est.info.get('n_outliers_removed', '-')}")
+        bias = est.info.get("gyro_bias")
+        print(f"  process CPU time {cpu:.1f} s; load average now "
+              f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}; gyro bias "
+              f"{'-' if bias is None else np.round(bias, 4).tolist()} rad/s; pairing {args.pairing}")
         gt = ground_truth(path, seq.calibration.cam_T_imu)
         if gt is not None:
             n = min(len(gt), est.n_frames)

@@ -116,3 +116,32 @@ class GyroBiasModel:
                initial: np.ndarray | None = None) -> "GyroBiasModel":
         return cls(bias_jacobians(twists, tau), gtsam.noiseModel.Isotropic.Sigma(3, float(prior_sigma)),
                    np.zeros(3) if initial is None else np.asarray(initial, dtype=float))
+
+
+def estimate_bias(poses: np.ndarray, deltas: np.ndarray, D: np.ndarray, covs: np.ndarray,
+                  prior_sigma: float, initial: np.ndarray | None = None, iterations: int = 3) -> np.ndarray:
+    """The bias (3,) that best explains the relative poses of a fixed trajectory ``poses``
+    (T, 4, 4): Gauss-Newton on ``sum_k |e_k(b)|^2_{covs_k} + |b / prior_sigma|^2`` with the
+    factor's error and bias Jacobian (the poses held fixed).
+
+    This is the bias step of the smoother's alternating scheme (``gyro_bias="alternate"``):
+    the bias is determined by the intervals vision constrains, so the poses and the bias are
+    only weakly coupled and two rounds (solve, re-estimate, solve) suffice."""
+    b = np.zeros(3) if initial is None else np.asarray(initial, dtype=float).copy()
+    info = np.linalg.inv(covs)
+    x = [to_pose3(T) for T in poses]
+    measured = [to_pose3(d) for d in deltas]
+    for _ in range(int(iterations)):
+        A = np.eye(3) / prior_sigma**2
+        g = b / prior_sigma**2
+        for k in range(len(deltas)):
+            H: list = []
+            e = biased_motion_error(measured[k], D[k], x[k], x[k + 1], b, H)
+            Hb = H[2]
+            A += Hb.T @ info[k] @ Hb
+            g += Hb.T @ info[k] @ e
+        step = np.linalg.solve(A, -g)
+        b = b + step
+        if np.max(np.abs(step)) < 1e-9:
+            break
+    return b

@@ -16,6 +16,8 @@ from ekf.errors import InputError
 
 #: Where the batch smoother's initial trajectory comes from.
 INITIALISERS = ("ekf", "dead-reckoning", "isam2")
+#: How the smoother treats the gyro bias (SmootherSettings.gyro_bias).
+GYRO_BIAS_MODES = ("alternate", "joint", "off")
 
 
 @dataclass(frozen=True)
@@ -38,9 +40,12 @@ class SmootherSettings:
     #: Cheirality margin: a landmark closer than this (m) to, or behind, any of its cameras is
     #: dropped (GTSAM's stereo factor returns a constant residual with a zero Jacobian there).
     min_depth: float = 0.1
-    #: Estimate one constant gyro bias shared by all motion factors (graph.gyro_bias); its
-    #: zero-mean prior has FilterConfig.gyro_bias_sigma.
-    gyro_bias: bool = True
+    #: One constant gyro bias shared by all motion factors (graph.gyro_bias), zero-mean prior
+    #: with FilterConfig.gyro_bias_sigma: "alternate" (default: estimated from the trajectory
+    #: before each LM solve, the motions corrected for it; at least two solves), "joint" (a
+    #: bias variable in the graph; a Python CustomFactor per interval, several times slower
+    #: per LM iteration) or "off".
+    gyro_bias: str = "alternate"
     #: Compute the pose and landmark marginal covariances.
     compute_marginals: bool = True
     #: iSAM2 relinearisation threshold and skip.
@@ -57,6 +62,8 @@ class SmootherSettings:
         for name in ("max_iterations", "isam2_relinearize_skip"):
             if int(getattr(self, name)) < 1:
                 raise InputError(f"smoother setting {name!r} must be >= 1, got {getattr(self, name)!r}")
+        if self.gyro_bias not in GYRO_BIAS_MODES:
+            raise InputError(f"smoother setting 'gyro_bias' must be one of {GYRO_BIAS_MODES}, got {self.gyro_bias!r}")
         if int(self.rejection_rounds) < 0:
             raise InputError(f"smoother setting 'rejection_rounds' must be >= 0, got {self.rejection_rounds!r}")
         if self.absolute_error_tol < 0:

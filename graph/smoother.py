@@ -42,7 +42,7 @@ from graph.factors import (
     triangulate_landmarks,
     usable_rows,
 )
-from graph.gyro_bias import BIAS_KEY, GyroBiasModel
+from graph.gyro_bias import BIAS_KEY, GyroBiasModel, corrected_deltas, estimate_bias
 from graph.inputs import prepare_sequence
 from graph.marginals import batch_marginals
 from graph.pose_conversions import estimation_error
@@ -156,11 +156,18 @@ def run_smoother(
 
     tick = time.perf_counter()
     noise = NoiseModels.create(cleaned, config, settings, motion_covs)
-    bias = None
-    if settings.gyro_bias:
+    bias = None  # the joint bias variable ("joint")
+    b_hat = None  # the bias the motion factors are corrected for ("alternate")
+    motion = deltas
+    if settings.gyro_bias != "off":
         twists, tau = interval_twists(cleaned, config.velocity_pairing)
-        bias = GyroBiasModel.create(twists, tau, config.gyro_bias_sigma)
-    problem = build_graph(poses0, landmarks0, rows, deltas, noise, bias)
+        model = GyroBiasModel.create(twists, tau, config.gyro_bias_sigma)
+        if settings.gyro_bias == "joint":
+            bias = model
+        else:
+            b_hat = estimate_bias(poses0, deltas, model.D, motion_covs, config.gyro_bias_sigma)
+            motion = corrected_deltas(deltas, model.D, b_hat)
+    problem = build_graph(poses0, landmarks0, rows, motion, noise, bias)
     timing["build_s"] += time.perf_counter() - tick
 
     iterations: list[int] = []
@@ -184,7 +191,10 @@ def run_smoother(
         multi = keep_multi_observed(good_rows, M)
         final_keep = np.zeros(len(rows), dtype=bool)
         final_keep[np.flatnonzero(good)[multi]] = True
-        if final_keep.all():
+        if b_hat is not None:  # the bias step of the alternating scheme
+            b_hat = estimate_bias(poses, deltas, model.D, motion_covs, config.gyro_bias_sigma, b_hat)
+            motion = corrected_deltas(deltas, model.D, b_hat)
+        elif final_keep.all():
             timing["build_s"] += time.perf_counter() - tick
             break
         n_outliers += int(np.sum(~final_keep))
@@ -192,7 +202,7 @@ def run_smoother(
         rows = rows.subset(final_keep)
         if bias is not None:
             bias.initial = np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
-        problem = build_graph(poses, landmarks, rows, deltas, noise, bias)
+        problem = build_graph(poses, landmarks, rows, motion, noise, bias)
         timing["build_s"] += time.perf_counter() - tick
     report(3, 4)
 
@@ -201,7 +211,7 @@ def run_smoother(
     est = Estimate.empty("smoother", cleaned.timestamps, M)
     est.poses = poses
     est.landmarks = landmarks
-    gyro_bias = None if bias is None else np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
+    gyro_bias = b_hat if bias is None else np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
     if settings.compute_marginals:
         tick = time.perf_counter()
         graph, solution = (problem.graph, values) if bias is None else fix_bias(problem, values, deltas, noise, bias)

@@ -93,8 +93,11 @@ def test_smoother_recovers_a_constant_gyro_bias():
     sim = simulate(SimConfig(seed=11, n_frames=150, gyro_bias=bias, gyro_sigma=0.01))
     config = FilterConfig(clean_tracks=False, gyro_sigma=0.01)
     with_bias = run_smoother(sim.sequence, config, init="dead-reckoning")
+    joint = run_smoother(sim.sequence, config, init="dead-reckoning",
+                         settings=SmootherSettings(gyro_bias="joint", compute_marginals=False))
+    np.testing.assert_allclose(joint.info["gyro_bias"], bias, atol=0.0025)
     without = run_smoother(sim.sequence, config, init="dead-reckoning",
-                           settings=SmootherSettings(gyro_bias=False))
+                           settings=SmootherSettings(gyro_bias="off"))
     estimated = np.asarray(with_bias.info["gyro_bias"])
     np.testing.assert_allclose(estimated, bias, atol=0.0025)
     assert without.info["gyro_bias"] is None
