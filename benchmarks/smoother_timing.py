@@ -56,11 +56,21 @@ def main() -> None:
     parser.add_argument("--pairing", default="mean", choices=("current", "next", "mean"),
                         help="which velocity sample covers [k, k+1]")
     parser.add_argument("--gyro-bias", default="alternate", choices=("alternate", "joint", "off"))
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="a SmootherSettings or FilterConfig field (repeatable), e.g. rejection_rounds=2")
     args = parser.parse_args()
-    config = FilterConfig(clean_tracks=not args.no_clean, velocity_pairing=args.pairing)
     from graph.settings import SmootherSettings
 
-    settings = SmootherSettings(gyro_bias=args.gyro_bias)
+    changes: dict[str, dict] = {"settings": {"gyro_bias": args.gyro_bias},
+                                "config": {"clean_tracks": not args.no_clean, "velocity_pairing": args.pairing}}
+    for item in args.set:
+        name, _, text = item.partition("=")
+        value = type(getattr(SmootherSettings(), name, getattr(FilterConfig(), name, 0.0)))(text)
+        changes["settings" if hasattr(SmootherSettings(), name) else "config"][name] = value
+    config = FilterConfig(**changes["config"])
+    settings = SmootherSettings(**changes["settings"])
+    if args.set:
+        print(f"settings changed: {args.set}")
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
     from eval.metrics import trajectory_metrics
     from graph.isam2 import run_isam2

@@ -270,3 +270,33 @@ def fix_bias(problem: GraphProblem, values: gtsam.Values, deltas: np.ndarray, no
     fixed = gtsam.Values(values)
     fixed.erase(BIAS_KEY)
     return graph, fixed
+
+
+# --- intervals without vision ---------------------------------------------------------------
+def unconstrained_intervals(rows: StereoRows, n_frames: int) -> np.ndarray:
+    """Boolean (T-1,): no track is observed at both ends of the interval ``[k, k+1]``, so only
+    the velocity spans it (the shared drives' repeat events, after track cleaning)."""
+    order = np.lexsort((rows.frame, rows.track))
+    f, t = rows.frame[order], rows.track[order]
+    linked = (t[1:] == t[:-1]) & (f[1:] == f[:-1] + 1)
+    covered = np.zeros(max(n_frames - 1, 0), dtype=bool)
+    covered[f[:-1][linked]] = True
+    return ~covered
+
+
+def smoothed_gap_motions(seq: Sequence, config: FilterConfig, gaps: np.ndarray,
+                         window: int) -> np.ndarray:
+    """Relative poses (T-1, 4, 4) as :func:`relative_motions`, except that on the intervals
+    ``gaps`` the angular velocity is the mean of the ``window`` samples centred on the
+    interval (``window`` even; samples ``k - window/2 + 1 .. k + window/2``, clamped at the
+    ends). The gyro noise is white while a car turns smoothly: on 0027 against ground truth
+    the rate error per interval drops from about 0.037 rad/s (mean of 2) to 0.026 (6)."""
+    twist, tau = interval_twists(seq, config.velocity_pairing)
+    twist = twist.copy()
+    half = max(int(window) // 2, 1)
+    w = seq.angular_velocity
+    T = seq.n_frames
+    for k in np.flatnonzero(gaps):
+        lo, hi = max(k - half + 1, 0), min(k + half, T - 1)
+        twist[k, 3:] = w[lo:hi + 1].mean(axis=0)
+    return se3_exp(tau[:, None] * twist)

@@ -46,6 +46,10 @@ class SmootherSettings:
     #: bias variable in the graph; a Python CustomFactor per interval, several times slower
     #: per LM iteration) or "off".
     gyro_bias: str = "alternate"
+    #: On intervals no track spans (repeat events), the angular velocity is the mean of this
+    #: many samples centred on the interval instead of 2 (graph.factors.smoothed_gap_motions);
+    #: 2 or less: off.
+    gap_gyro_window: int = 6
     #: Compute the pose and landmark marginal covariances.
     compute_marginals: bool = True
     #: iSAM2 relinearisation threshold and skip.

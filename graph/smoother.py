@@ -38,8 +38,10 @@ from graph.factors import (
     landmarks_from_values,
     poses_from_values,
     relative_motions,
+    smoothed_gap_motions,
     stereo_residuals,
     triangulate_landmarks,
+    unconstrained_intervals,
     usable_rows,
 )
 from graph.gyro_bias import BIAS_KEY, GyroBiasModel, corrected_deltas, estimate_bias
@@ -156,6 +158,11 @@ def run_smoother(
 
     tick = time.perf_counter()
     noise = NoiseModels.create(cleaned, config, settings, motion_covs)
+    if settings.gap_gyro_window > 2:
+        gaps = unconstrained_intervals(rows, T)
+        deltas = smoothed_gap_motions(cleaned, config, gaps, settings.gap_gyro_window)
+        log.info("smoother: %d intervals without vision use a %d-sample gyro mean",
+                 int(gaps.sum()), settings.gap_gyro_window)
     bias = None  # the joint bias variable ("joint")
     b_hat = None  # the bias the motion factors are corrected for ("alternate")
     motion = deltas
