@@ -6,10 +6,19 @@ Steps, each timed (``est.info["timing"]``):
    request; LM from dead reckoning converges badly on the shared drives), landmarks triangulated
    from each track's largest-disparity observation, and tracks behind any of their cameras
    dropped (GTSAM's stereo factor fails silently there: constant residual, zero Jacobian).
-2. *build* the graph (:mod:`graph.factors`).
-3. *optimise* with LM; then remove stereo factors whose residual exceeds
-   ``settings.outlier_threshold_px`` (or whose point went behind the camera), and solve again.
-4. *marginals*: pose and landmark covariances, converted to the Estimate convention.
+2. *build* the graph (:mod:`graph.factors`). On intervals no track spans (the repeat events
+   of the shared drives) the gyro is averaged over ``settings.gap_gyro_window`` samples. A
+   constant gyro bias (:mod:`graph.gyro_bias`) is estimated from the initial trajectory and
+   removed from every motion factor (``settings.gyro_bias="alternate"``), or estimated jointly
+   as a graph variable (``"joint"``, slower).
+3. *optimise* with LM; then re-estimate the bias from the solution, remove stereo factors whose
+   residual exceeds ``settings.outlier_threshold_px`` (or whose point went behind the camera),
+   and solve again.
+4. *marginals*: pose and landmark covariances (conditional on the estimated bias), converted
+   to the Estimate convention.
+
+On 0027 (ground truth, 2-core machine, load ~2): aligned ATE 5.06 m, KITTI t_rel 2.30 %
+(6.65 m, 3.00 % without the bias and the gap averaging); 0034 in about 20 s with marginals.
 """
 
 from __future__ import annotations
