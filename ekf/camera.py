@@ -98,3 +98,46 @@ def triangulate(
     """
     p, J = triangulate_with_jacobian(z, K, baseline)
     return p, J @ pixel_cov @ np.swapaxes(J, -1, -2)
+
+
+#: Orthonormal change of pixel coordinates whose first row is the disparity direction
+#: ``(uL - uR) / sqrt(2)``: a square root of V built in this basis moves the disparity along a
+#: single sigma-point axis (see :func:`triangulate_unscented`).
+_DISPARITY_BASIS = np.array(
+    [[1.0, 0.0, -1.0, 0.0], [1.0, 0.0, 1.0, 0.0], [0.0, 1.0, 0.0, -1.0], [0.0, 1.0, 0.0, 1.0]]
+) / np.sqrt(2.0)
+
+
+def triangulate_unscented(
+    z: np.ndarray, K: np.ndarray, baseline: float, pixel_cov: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Stereo triangulation by the unscented transform of the pixel noise ``V = pixel_cov``.
+
+    The 2n+1 = 9 sigma points ``z, z +- sqrt(3) L_j`` (Julier's ``kappa = 3 - n``, weights
+    ``-1/3`` and ``1/6``) go through the exact triangulation. ``L`` is the square root of V whose
+    first column alone changes the disparity, so along the depth the rule is the 3-point
+    Gauss-Hermite quadrature (exact for the Gaussian moments up to degree 5): it captures the skew
+    of ``depth = fsu b / disparity`` that the first-order ``J V J^T`` misses for far points.
+    The covariance uses the weights ``W0 = -1/3 + beta`` (``beta = 2``, the Gaussian choice)
+    and ``1/6``, which keeps it positive definite.
+
+    ``z`` (N, 4). Returns the mean (N, 3) and covariance (N, 3, 3) of the left-camera point.
+    Sigma points with non-positive disparity give NaN rows: callers reject those first.
+    """
+    z = np.atleast_2d(np.asarray(z, dtype=float))
+    V = np.asarray(pixel_cov, dtype=float)
+    n, kappa, beta = 4, -1.0, 2.0
+    B = _DISPARITY_BASIS
+    L = B.T @ np.linalg.cholesky(B @ V @ B.T)  # V = L L^T; column 0 carries the disparity
+    offsets = np.sqrt(n + kappa) * np.concatenate([L.T, -L.T])  # (8, 4)
+    sigma = np.concatenate([z[:, None, :], z[:, None, :] + offsets], axis=1)  # (N, 9, 4)
+    y, _ = triangulate_with_jacobian(sigma.reshape(-1, 4), K, baseline)
+    y = y.reshape(z.shape[0], 2 * n + 1, 3)
+    w = np.full(2 * n + 1, 1.0 / (2.0 * (n + kappa)))
+    w[0] = kappa / (n + kappa)
+    mean = np.einsum("s,nsk->nk", w, y)
+    wc = w.copy()
+    wc[0] += beta
+    d = y - mean[:, None, :]
+    cov = np.einsum("s,nsi,nsj->nij", wc, d, d)
+    return mean, cov

@@ -52,7 +52,7 @@ from scipy.linalg.blas import dtrsm
 from scipy.linalg.lapack import dpotrf
 from scipy.stats import chi2
 
-from ekf.camera import dpi_dq, project, triangulate_with_jacobian
+from ekf.camera import dpi_dq, project, triangulate_unscented, triangulate_with_jacobian
 from ekf.config import FilterConfig
 from ekf.conventions import left_cov_to_estimate
 from ekf.errors import EstimationError, InputError
@@ -461,10 +461,16 @@ def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off
     tracks, pc, Jt = tracks[ok], pc[ok], Jt[ok]
     k = tracks.size
     R, p = st.T[:3, :3], st.T[:3, 3]
+    if config.triangulation == "unscented":
+        # Mean and pixel-noise covariance to higher order; the pose part stays xi_l = xi_p.
+        pc, cov_c = triangulate_unscented(z[ok], cal.K, cal.baseline, V)
+        Rw = R @ imu_T_cam[:3, :3]
+        Cn = Rw @ cov_c @ Rw.T
+    else:
+        Gz = augmentation_jacobians(st.T, Jt, imu_T_cam)
+        Cn = Gz @ V @ np.swapaxes(Gz, 1, 2)
     c = pc @ imu_T_cam[:3, :3].T + imu_T_cam[:3, 3]
     lm_new = c @ R.T + p
-    Gz = augmentation_jacobians(st.T, Jt, imu_T_cam)
-    Cn = Gz @ V @ np.swapaxes(Gz, 1, 2)
     P = st.P
     n = P.shape[0]
     Pn = np.empty((n + 3 * k, n + 3 * k))

@@ -185,22 +185,23 @@ class JointState:
         """
         if tracks.size == 0:
             return
-        m, J_d, J_z = model.initialise(self.U, z)
+        m, J_d, Cz = model.initialise_with_cov(self.U, z)  # Cz: the pixel-noise part
         Pdd = self.P[:6, :6]
         self.ever[tracks] = True
         if np.any(ends_now):
             tr = tracks[ends_now]
             self.map_mean[tr] = m[ends_now]
-            self.map_cov[tr] = model.initial_landmark_cov(J_d[ends_now], J_z[ends_now], Pdd)
+            Je = J_d[ends_now]
+            cov = Cz[ends_now] + Je @ Pdd @ np.swapaxes(Je, 1, 2)
+            self.map_cov[tr] = 0.5 * (cov + np.swapaxes(cov, 1, 2))
         add = ~ends_now
         n = int(add.sum())
         if n == 0:
             return
-        m, J_d, J_z = m[add], J_d[add], J_z[add]
+        m, J_d, Cz = m[add], J_d[add], Cz[add]
         Jd = J_d.reshape(3 * n, 6)
         B = Jd @ self.P[:6, :]  # cross-covariance with the whole state (3n, N)
         C = B[:, :6] @ Jd.T
-        Cz = J_z @ model.V @ np.swapaxes(J_z, 1, 2)
         C.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] += Cz
         N = self.P.shape[0]
         P = np.empty((N + 3 * n, N + 3 * n))

@@ -43,9 +43,9 @@ class LandmarkMap:
         new = valid & ~known
         if np.any(new):
             tr = tracks[new]
-            m, J_d, J_z = model.initialise(U, z[new])
+            m, _, cov = model.initialise_with_cov(U, z[new])  # the pose is taken as exact
             self.mean[tr] = m
-            self.cov[tr] = model.initial_landmark_cov(J_d, J_z)
+            self.cov[tr] = 0.5 * (cov + np.swapaxes(cov, 1, 2))
             self.initialised[tr] = True
         n_rej = int(tracks.size - n_upd - int(new.sum()))
         return n_upd, n_rej, int(new.sum())

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from ekf.camera import dpi_dq, triangulate_with_jacobian
+from ekf.camera import dpi_dq, triangulate_unscented, triangulate_with_jacobian
 from ekf.geometry import hat, se3_inv
 from ekf.sequence import Calibration
 
@@ -49,7 +49,8 @@ class StereoModel:
     ``M`` (4x4) paper eq. 2; ``cam_T_imu``; ``V`` (4x4) pixel covariance; ``C`` (3x4) and ``R3``
     (3x3) the lossless reduction (module docstring); ``S4_extra = V - A R3 A^T``;
     ``gate`` the chi-square threshold on the 4-dof NIS; ``min_disparity`` (px) and ``max_depth``
-    (m, None: no limit) the rejection limits.
+    (m, None: no limit) the rejection limits; ``triangulation`` "linear" or "unscented" (the
+    landmark initialisation of :meth:`initialise_with_cov`).
     """
 
     K: np.ndarray
@@ -65,6 +66,7 @@ class StereoModel:
     gate: float
     min_disparity: float
     max_depth: float | None
+    triangulation: str = "linear"
 
     @classmethod
     def create(
@@ -74,6 +76,7 @@ class StereoModel:
         gate_probability: float | None = 0.99,
         min_disparity: float = 1.0,
         max_depth: float | None = None,
+        triangulation: str = "linear",
     ) -> "StereoModel":
         V = np.asarray(pixel_cov, dtype=float)
         Vinv = np.linalg.inv(V)
@@ -96,6 +99,7 @@ class StereoModel:
             gate=chi2_gate(gate_probability, 4),
             min_disparity=float(min_disparity),
             max_depth=None if max_depth is None else float(max_depth),
+            triangulation=str(triangulation),
         )
 
     @classmethod
@@ -107,6 +111,7 @@ class StereoModel:
             config.gate_probability,
             config.min_disparity,
             config.max_depth,
+            getattr(config, "triangulation", "linear"),
         )
 
     # --- observation checks -------------------------------------------------------------
@@ -212,6 +217,29 @@ class StereoModel:
         J_d[:, :, 3:] = Rt @ hat(s)
         J_z = (Rt @ Ric) @ Jtri
         return m, J_d, J_z
+
+    def initialise_with_cov(self, U: np.ndarray, z: np.ndarray):
+        """Like :meth:`initialise` but with the pixel part of the covariance: ``(m, J_d, C_z)``.
+
+        ``C_z`` (n, 3, 3) is the world covariance of ``m`` due to the pixel noise alone: ``J_z V
+        J_z^T`` ("linear") or the rotated unscented camera-frame covariance ("unscented", whose
+        mean also replaces ``m``). The pose error enters linearly through ``J_d`` either way, so
+        the full covariance is ``C_z + J_d Sigma_pose J_d^T`` with cross-covariance
+        ``J_d Sigma_pose,x``.
+        """
+        if self.triangulation != "unscented":
+            m, J_d, J_z = self.initialise(U, z)
+            return m, J_d, J_z @ self.V @ np.swapaxes(J_z, 1, 2)
+        p_cam, cov_cam = triangulate_unscented(z, self.K, self.baseline, self.V)
+        Ric, tic = self.imu_T_cam[:3, :3], self.imu_T_cam[:3, 3]
+        s = p_cam @ Ric.T + tic
+        Rt = U[:3, :3].T
+        m = (s - U[:3, 3]) @ Rt.T
+        J_d = np.empty((z.shape[0], 3, 6))
+        J_d[:, :, :3] = -Rt
+        J_d[:, :, 3:] = Rt @ hat(s)
+        Rw = Rt @ Ric
+        return m, J_d, Rw @ cov_cam @ Rw.T
 
     def initial_landmark_cov(
         self, J_d: np.ndarray, J_z: np.ndarray, Sigma_pose: np.ndarray | None = None
