@@ -16,10 +16,10 @@ from eval.consistency import LANDMARK_DOF, POSE_DOF, VERDICT_ABOVE, VERDICT_INSI
 pytestmark = pytest.mark.slow
 
 CONSISTENT = ("ekf-invariant", "smoother")
-#: ANEES ceilings of ekf-joint (pose, landmark): measured 45.9 and 58.6 (10 runs x 120 frames,
-#: seed 0); a margin above, so that a regression (or dropping its cross-covariance,
-#: which gives thousands) fails.
-JOINT_CEILING = {"pose": 70.0, "landmark": 90.0}
+#: ANEES ceilings of ekf-joint (pose, landmark): measured 15.25 and 36.2 (10 runs x 120 frames,
+#: seed 0); about 25 % above, so that a regression (or dropping its cross-covariance, which gives
+#: thousands) fails.
+JOINT_CEILING = {"pose": 19.0, "landmark": 45.0}
 
 
 def _pose(mc, name):
