@@ -33,9 +33,20 @@ def kitti_data_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def monte_carlo(regression_config):
-    """The simulated Monte Carlo study (tests/regression/simulation.py), run once per session."""
+    """The Monte Carlo study on the near-field simulation (tests/regression/simulation.py,
+    NEAR_FIELD: where the EKFs' first-order stereo model holds), run once per session."""
+    from tests.regression.simulation import NEAR_FIELD, run_monte_carlo
+
+    mc = run_monte_carlo(regression_config, run_name, sim_changes=NEAR_FIELD)
+    print(f"\nMonte Carlo (near field): {mc.runs} runs x {mc.frames} frames in {mc.wall_s:.1f} s")
+    return mc
+
+
+@pytest.fixture(scope="session")
+def monte_carlo_default(regression_config):
+    """The same study on the default simulation (landmarks to 60 m), run once per session."""
     from tests.regression.simulation import run_monte_carlo
 
     mc = run_monte_carlo(regression_config, run_name)
-    print(f"\nMonte Carlo: {mc.runs} runs x {mc.frames} frames in {mc.wall_s:.1f} s")
+    print(f"\nMonte Carlo (default simulation): {mc.runs} runs x {mc.frames} frames in {mc.wall_s:.1f} s")
     return mc

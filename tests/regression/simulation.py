@@ -40,15 +40,29 @@ class MonteCarlo:
         return f"MonteCarlo(runs={self.runs}, frames={self.frames}, wall_s={self.wall_s:.1f})"
 
 
+#: The near field: landmarks within 25 m and no far points. There the stereo triangulation is
+#: close to linear over the pixel noise and the EKFs' Gaussian model holds; see NEAR_FIELD_WHY.
+NEAR_FIELD = {"max_depth": 25.0, "far_fraction": 0.0}
+NEAR_FIELD_WHY = (
+    "On the default simulation (landmarks to 60 m, disparities down to ~6 px) the EKFs are "
+    "overconfident (pose ANEES ~15, landmarks ~37 for 6 and 3): the first-order stereo model "
+    "does not hold for far points (measured: pixel noise 0.2 px, or no landmarks beyond 25 m, "
+    "gives ANEES 4.8 / 6.2; unscented initialisation did not fix it). The smoother is "
+    "consistent on both."
+)
+
+
 def run_monte_carlo(config: FilterConfig, run_name, runs: int = RUNS, frames: int = FRAMES,
-                    seed: int = SEED, jobs: int = 2) -> MonteCarlo:
-    """The study for ``config``; ``run_name(logical) -> registry name`` (the deliberate break)."""
+                    seed: int = SEED, jobs: int = 2, sim_changes: dict | None = None) -> MonteCarlo:
+    """The study for ``config``; ``run_name(logical) -> registry name`` (the deliberate break);
+    ``sim_changes`` alter the default simulation (e.g. :data:`NEAR_FIELD`)."""
     from eval.benchmark import JobFailure, landmark_nees_by_source, redraw_noise, run_jobs
     from eval.consistency import pose_nees
     from eval.simulate import DEFAULT_SIM, simulate
 
     t0 = time.perf_counter()
-    sim = dataclasses.replace(DEFAULT_SIM, seed=seed, n_frames=frames, name=f"regression-seed{seed}")
+    sim = dataclasses.replace(DEFAULT_SIM, seed=seed, n_frames=frames, name=f"regression-seed{seed}",
+                              **(sim_changes or {}))
     truth = simulate(dataclasses.replace(sim, noise_free=True))
     T = truth.sequence.n_frames
     seqs = {f"run{i:03d}": redraw_noise(truth, sim, np.random.default_rng([seed, i])) for i in range(runs)}

@@ -8,8 +8,9 @@ EKF has at least that share inside: the smoother uses a superset of the data, so
 has covariance P_ekf - P_smoother <= P_ekf. The required share is the predicted 0.9973 less the
 binomial 1 % allowance for the number of frames scored.
 
-``ekf-invariant`` must agree. ``ekf-decoupled`` is pinned to fail (proof that the test can fail).
-``ekf-joint`` is overconfident today: reported with a regression floor below today's share."""
+Run on the near-field simulation (``monte_carlo``; tests/regression/simulation.py, NEAR_FIELD).
+``ekf-invariant`` and ``ekf-joint`` must agree (both measured 1.000 of 1190 frames).
+``ekf-decoupled`` is pinned to fail (proof that the test can fail)."""
 
 from __future__ import annotations
 
@@ -22,8 +23,6 @@ from eval.consistency import POSE_DOF
 pytestmark = pytest.mark.slow
 
 THREE_SIGMA = chi2.cdf(9.0, 1)  # 0.9973
-#: Share of ekf-joint frames inside: measured 0.873 (10 runs x 120 frames, seed 0); floor below.
-JOINT_FLOOR = 0.80
 
 
 def _share(mc, name) -> tuple[float, float, str]:
@@ -39,16 +38,12 @@ def _share(mc, name) -> tuple[float, float, str]:
     return share, required, line
 
 
-def test_invariant_agrees_with_smoother(monte_carlo):
-    share, required, line = _share(monte_carlo, "ekf-invariant")
+@pytest.mark.parametrize("name", ["ekf-invariant", "ekf-joint"])
+def test_ekf_agrees_with_smoother(monte_carlo, name):
+    share, required, line = _share(monte_carlo, name)
     assert share >= required, line
 
 
 def test_decoupled_disagrees_with_smoother(monte_carlo):
     share, required, line = _share(monte_carlo, "ekf-decoupled")
     assert share < required, f"{line}: the decoupled filter now agrees; was 0.007"
-
-
-def test_joint_reported_with_floor(monte_carlo):
-    share, required, line = _share(monte_carlo, "ekf-joint")
-    assert share >= JOINT_FLOOR, f"{line}; regression floor {JOINT_FLOOR}"
