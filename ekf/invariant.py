@@ -59,12 +59,12 @@ from ekf.errors import EstimationError, InputError
 from ekf.estimate import Estimate
 from ekf.geometry import (
     adjoint,
-    curly_hat,
     hat,
     homogeneous,
     so3_left_jacobian_inv,
     so3_log,
 )
+from ekf.prediction import se3_exp_single, se3_left_jacobian
 from ekf.sequence import Sequence
 
 log = logging.getLogger(__name__)
@@ -85,21 +85,6 @@ def landmark_offset(gyro_bias: bool) -> int:
 # --------------------------------------------------------------------------------------
 # Group math of SE_{1+K}(3)
 # --------------------------------------------------------------------------------------
-def se3_left_jacobian(xi: np.ndarray, terms: int = 14) -> np.ndarray:
-    """Left Jacobian of SE(3) (6x6, translation first): ``exp(xi + d) ~ exp(J_l d) exp(xi)``.
-
-    Power series ``sum ad^n / (n+1)!`` of :func:`ekf.geometry.curly_hat`; the twists here are
-    one time step long (rotation well under a radian), where 14 terms reach machine precision.
-    """
-    ad = curly_hat(np.asarray(xi, dtype=float))
-    out = np.eye(6)
-    term = np.eye(6)
-    for n in range(1, terms):
-        term = term @ ad / (n + 1)
-        out = out + term
-    return out
-
-
 def _so3_exp_and_jl(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``so3_exp(phi)`` and ``so3_left_jacobian(phi)`` of one vector, without batch overhead."""
     th2 = float(phi @ phi)
@@ -113,14 +98,6 @@ def _so3_exp_and_jl(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         a, b, c = s / th, (1.0 - co) / th2, (th - s) / (th2 * th)
     I = np.eye(3)
     return I + a * W + b * W2, I + b * W + c * W2
-
-
-def _se3_exp_one(xi: np.ndarray) -> np.ndarray:
-    R, J = _so3_exp_and_jl(xi[3:])
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = J @ xi[:3]
-    return T
 
 
 def retract(
@@ -383,7 +360,7 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConf
         P[B_IDX, B_IDX] += config.gyro_bias_walk**2 * tau * np.eye(3)
     BL = tau * (B @ W_chol)
     P += BL @ BL.T
-    st.T = st.T @ _se3_exp_one(twist)
+    st.T = st.T @ se3_exp_single(twist)
 
 
 def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterConfig, off: int):
