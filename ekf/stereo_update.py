@@ -201,6 +201,18 @@ class StereoModel:
         return self.nis(r4, self.full_innovation_cov(S3)) <= self.gate
 
     # --- initialisation -----------------------------------------------------------------
+    def _camera_to_world(self, U: np.ndarray, p_cam: np.ndarray):
+        """``m = U^-1 imu_T_cam p_cam`` (n, 3), ``J_d = dm/dd`` (n, 3, 6) for ``U = exp(d^) mu``,
+        and the camera-to-world rotation ``R_wc`` (3, 3)."""
+        Ric, tic = self.imu_T_cam[:3, :3], self.imu_T_cam[:3, 3]
+        s = p_cam @ Ric.T + tic
+        Rt = U[:3, :3].T
+        m = (s - U[:3, 3]) @ Rt.T
+        J_d = np.empty((p_cam.shape[0], 3, 6))
+        J_d[:, :, :3] = -Rt
+        J_d[:, :, 3:] = Rt @ hat(s)
+        return m, J_d, Rt @ Ric
+
     def initialise(self, U: np.ndarray, z: np.ndarray):
         """Stereo triangulation into the world: ``(m (n,3), J_d (n,3,6), J_z (n,3,4))``.
 
@@ -208,15 +220,8 @@ class StereoModel:
         ``J_z = dm/dz``. The caller checks :meth:`valid_observations` first.
         """
         p_cam, Jtri = triangulate_with_jacobian(z, self.K, self.baseline)
-        Ric, tic = self.imu_T_cam[:3, :3], self.imu_T_cam[:3, 3]
-        s = p_cam @ Ric.T + tic
-        Rt = U[:3, :3].T
-        m = (s - U[:3, 3]) @ Rt.T
-        J_d = np.empty((z.shape[0], 3, 6))
-        J_d[:, :, :3] = -Rt
-        J_d[:, :, 3:] = Rt @ hat(s)
-        J_z = (Rt @ Ric) @ Jtri
-        return m, J_d, J_z
+        m, J_d, R_wc = self._camera_to_world(U, p_cam)
+        return m, J_d, R_wc @ Jtri
 
     def initialise_with_cov(self, U: np.ndarray, z: np.ndarray):
         """Like :meth:`initialise` but with the pixel part of the covariance: ``(m, J_d, C_z)``.
@@ -231,15 +236,8 @@ class StereoModel:
             m, J_d, J_z = self.initialise(U, z)
             return m, J_d, J_z @ self.V @ np.swapaxes(J_z, 1, 2)
         p_cam, cov_cam = triangulate_unscented(z, self.K, self.baseline, self.V)
-        Ric, tic = self.imu_T_cam[:3, :3], self.imu_T_cam[:3, 3]
-        s = p_cam @ Ric.T + tic
-        Rt = U[:3, :3].T
-        m = (s - U[:3, 3]) @ Rt.T
-        J_d = np.empty((z.shape[0], 3, 6))
-        J_d[:, :, :3] = -Rt
-        J_d[:, :, 3:] = Rt @ hat(s)
-        Rw = Rt @ Ric
-        return m, J_d, Rw @ cov_cam @ Rw.T
+        m, J_d, R_wc = self._camera_to_world(U, p_cam)
+        return m, J_d, R_wc @ cov_cam @ R_wc.T
 
     def initial_landmark_cov(
         self, J_d: np.ndarray, J_z: np.ndarray, Sigma_pose: np.ndarray | None = None
