@@ -23,16 +23,18 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ekf_accuracy import default_data_dir, load_sequence, parse_settings  # noqa: E402
+from ekf_accuracy import parse_settings  # noqa: E402
 
 from ekf.config import FilterConfig  # noqa: E402
+from eval.datasets import drive_path  # noqa: E402
+from eval.loader import load_sequence  # noqa: E402
 
 
 def main(argv=None) -> int:
     from ekf.estimators import ESTIMATORS
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("path", nargs="?", type=Path, default=default_data_dir() / "0034.npz")
+    ap.add_argument("path", nargs="?", type=Path, default=drive_path("0034"))
     ap.add_argument("--modes", default=",".join(ESTIMATORS))
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--set", nargs="*", default=[])

@@ -18,33 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from ekf.config import FilterConfig
-from ekf.geometry import se3_inv
-from ekf.sequence import Calibration, Observations, Sequence
-
-
-def load(path: Path) -> Sequence:
-    try:
-        from eval.loader import load_sequence
-    except ImportError:
-        pass
-    else:
-        return load_sequence(path)
-    d = np.load(path)
-    ts = np.ravel(d["time_stamps"])
-    cam_T_imu = d["cam_T_imu"] if "cam_T_imu" in d else se3_inv(d["imu_T_cam"])
-    w = d["rotational_velocity"] if "rotational_velocity" in d else d["angular_velocity"]
-    return Sequence(path.stem, ts, d["linear_velocity"].T, w.T, Observations.from_dense(d["features"]),
-                    d["features"].shape[1], Calibration(d["K"], float(d["b"]), cam_T_imu), source=str(path))
-
-
-def ground_truth(path: Path, cam_T_imu: np.ndarray) -> np.ndarray | None:
-    gt_file = path.parent / "groundtruth" / f"{path.stem}.txt"
-    if not gt_file.exists():
-        return None
-    rows = np.loadtxt(gt_file)
-    P = np.tile(np.eye(4), (len(rows), 1, 1))
-    P[:, :3, :] = rows[:, 1:13].reshape(-1, 3, 4)
-    return se3_inv(cam_T_imu) @ P @ cam_T_imu
+from eval.groundtruth import find_ground_truth
+from eval.loader import load_sequence
 
 
 def main() -> None:
@@ -77,7 +52,7 @@ def main() -> None:
     from graph.smoother import run_smoother
 
     for path in args.files:
-        seq = load(path)
+        seq = load_sequence(path)
         start, cpu = time.perf_counter(), time.process_time()
         est = run_isam2(seq, config) if args.isam2 else run_smoother(seq, config, init=args.init, settings=settings)
         wall, cpu = time.perf_counter() - start, time.process_time() - cpu
@@ -93,14 +68,12 @@ def main() -> None:
         print(f"  process CPU time {cpu:.1f} s; load average now "
               f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}; gyro bias "
               f"{'-' if bias is None else np.round(bias, 4).tolist()} rad/s; pairing {args.pairing}")
-        gt = ground_truth(path, seq.calibration.cam_T_imu)
+        gt = find_ground_truth(path)
         if gt is not None:
-            n = min(len(gt), est.n_frames)
-            m = trajectory_metrics(est.poses[:n], gt[:n])
-            print(f"  vs ground truth ({n} frames): ATE raw {m['ate_rmse_m']:.2f} m, "
+            m = trajectory_metrics(est.poses[gt.frames], gt.poses)
+            print(f"  vs ground truth ({gt.frames.size} frames): ATE raw {m['ate_rmse_m']:.2f} m, "
                   f"aligned (SE3) {m['ate_se3_rmse_m']:.2f} m, KITTI t_rel {m['kitti_t_rel_pct']:.2f} %, "
                   f"r_rel {m['kitti_r_rel_deg_per_100m']:.3f} deg/100m")
-
 
 if __name__ == "__main__":
     main()
