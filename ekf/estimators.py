@@ -13,6 +13,7 @@ from typing import Callable
 from ekf.decoupled import run_decoupled
 from ekf.dead_reckoning import run_dead_reckoning
 from ekf.estimate import Estimate
+from ekf.invariant import run_invariant
 from ekf.joint import run_joint
 from ekf.mapping import run_mapping
 
@@ -26,17 +27,7 @@ ESTIMATORS: dict[str, Estimator] = {
     # observation's noise by its landmark's covariance (kept for comparison, not registered).
     "ekf-decoupled": partial(run_decoupled, as_written=True),
     "ekf-joint": run_joint,
+    "ekf-invariant": run_invariant,
 }
-
-# --- invariant EKF (ekf/invariant.py, written by another helper) -------------------------
-# Registered here when its module is present; remove the guard once it has landed.
-try:
-    from ekf.invariant import run_invariant
-except ModuleNotFoundError as exc:  # pragma: no cover - until ekf/invariant.py lands
-    if exc.name != "ekf.invariant":
-        raise
-else:
-    ESTIMATORS["ekf-invariant"] = run_invariant
-# -----------------------------------------------------------------------------------------
 
 __all__ = ["ESTIMATORS", "Estimator"]

@@ -42,7 +42,6 @@ Output. ``Estimate.pose_cov`` converts the pose block with
 
 from __future__ import annotations
 
-import logging
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -55,7 +54,7 @@ from scipy.stats import chi2
 from ekf.camera import dpi_dq, project, triangulate_unscented, triangulate_with_jacobian
 from ekf.config import FilterConfig
 from ekf.conventions import left_cov_to_estimate
-from ekf.errors import EstimationError, InputError
+from ekf.errors import EstimationError
 from ekf.estimate import Estimate
 from ekf.geometry import (
     adjoint,
@@ -65,9 +64,9 @@ from ekf.geometry import (
     so3_log,
 )
 from ekf.prediction import se3_exp_single, se3_left_jacobian
+from ekf.runner import blas_limits, interval_twists, prepare_sequence
 from ekf.sequence import Sequence
 
-log = logging.getLogger(__name__)
 
 ESTIMATOR_NAME = "ekf-invariant"
 
@@ -199,39 +198,6 @@ def landmark_world_cov(P: np.ndarray, landmarks: np.ndarray, slots: np.ndarray, 
 # --------------------------------------------------------------------------------------
 # The filter
 # --------------------------------------------------------------------------------------
-def _interval_twists(seq: Sequence, pairing: str) -> np.ndarray:
-    u = seq.velocities
-    if pairing == "current":
-        return u[:-1]
-    if pairing == "next":
-        return u[1:]
-    return 0.5 * (u[:-1] + u[1:])
-
-
-def _maybe_clean(seq: Sequence, config: FilterConfig):
-    if not config.clean_tracks:
-        return seq, False
-    try:
-        from ekf.cleaning import clean_sequence
-    except ImportError:  # the cleaning module lands separately
-        log.warning("ekf.cleaning is not available: running on the uncleaned tracks")
-        return seq, False
-    cleaned, _report = clean_sequence(
-        seq, split_repeats=True, min_disparity=config.min_disparity, max_depth=None
-    )
-    return cleaned, True
-
-
-def _blas_limits(n: int):
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - listed as a dependency
-        import contextlib
-
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=n, user_api="blas")
-
-
 @dataclass
 class _State:
     T: np.ndarray
@@ -250,21 +216,14 @@ def run_invariant(
 
     ``progress`` is called after each frame with the number of frames finished.
     """
-    seq, cleaned = _maybe_clean(seq, config)
-    if seq.n_frames < 1:
-        raise InputError(f"sequence {seq.name!r}: no frames")
-    dt = seq.dt
-    if np.any(~np.isfinite(dt)) or np.any(dt <= 0):
-        bad = int(np.flatnonzero(~(dt > 0))[0])
-        raise InputError(f"sequence {seq.name!r}: timestamps not increasing at index {bad + 1}")
-    with _blas_limits(int(config.blas_threads)):
+    seq, info = prepare_sequence(seq, config)
+    with blas_limits(config):
         est = _run(seq, config, progress)
+    est.info.update(info)
     est.info.update(
         {
             "estimator": ESTIMATOR_NAME,
             "config": config.to_dict(),
-            "clean_tracks_applied": cleaned,
-            "track_origin": np.asarray(seq.track_origin).tolist(),
             "error_state": "right-invariant SE_{1+K}(3): [xi_p, xi_R, (xi_b), xi_l...]",
         }
     )
@@ -282,8 +241,7 @@ def _run(seq: Sequence, config: FilterConfig, progress) -> Estimate:
     use_bias = bool(config.gyro_bias)
     off = landmark_offset(use_bias)
     gate = None if config.gate_probability is None else chi2.ppf(config.gate_probability, 4)
-    twists = _interval_twists(seq, config.velocity_pairing)
-    dt = seq.dt
+    dt, twists = interval_twists(seq, config)
     last_frame = seq.track_last_frame()
     Tn = seq.n_frames
 

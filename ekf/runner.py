@@ -28,8 +28,10 @@ from typing import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from ekf.cleaning import clean_sequence
 from ekf.config import FilterConfig
 from ekf.conventions import ekf_cov_to_estimate
+from ekf.errors import InputError
 from ekf.estimate import Estimate
 from ekf.geometry import se3_inv
 from ekf.prediction import paired_velocities
@@ -40,27 +42,41 @@ log = logging.getLogger(__name__)
 Progress = Callable[[int], None] | None
 
 
-def prepare_sequence(seq: Sequence, config: FilterConfig) -> tuple[Sequence, dict]:
-    """Apply the track-cleaning step when ``config.clean_tracks``; returns ``(seq, info)``.
+def validate_sequence(seq: Sequence) -> None:
+    """InputError naming the array and step where time stamps or velocities are not finite, or
+    where time does not increase (in-memory sequences bypass the loader's checks)."""
+    for key, arr in (
+        ("timestamps", seq.timestamps),
+        ("linear_velocity", seq.linear_velocity),
+        ("angular_velocity", seq.angular_velocity),
+    ):
+        bad = np.flatnonzero(~np.all(np.isfinite(np.reshape(arr, (len(arr), -1))), axis=1))
+        if bad.size:
+            raise InputError(f"sequence {seq.name!r}: {key} is not finite at step {int(bad[0])}")
+    if seq.n_frames < 1:
+        raise InputError(f"sequence {seq.name!r}: no frames")
+    if seq.n_frames > 1 and not np.all(np.diff(seq.timestamps) > 0):
+        k = int(np.flatnonzero(~(np.diff(seq.timestamps) > 0))[0])
+        raise InputError(f"sequence {seq.name!r}: timestamps do not increase at step {k + 1}")
 
+
+def prepare_sequence(seq: Sequence, config: FilterConfig) -> tuple[Sequence, dict]:
+    """What every estimator (EKF variants and smoothers) does first: :func:`validate_sequence`,
+    then the track-cleaning step when ``config.clean_tracks``; returns ``(seq, info)``.
+
+    Depth is not cut here (``max_depth=None``): each estimator rejects points beyond
+    ``config.max_depth`` itself, so they show in ``Estimate.n_rejected``.
     ``info`` records whether cleaning ran, its report, and ``track_origin`` of the (cleaned)
     sequence, which relates the Estimate's landmark rows to the source file's columns.
     """
+    validate_sequence(seq)
     info: dict = {"clean_tracks": bool(config.clean_tracks), "cleaned": False}
     if config.clean_tracks:
-        try:
-            from ekf.cleaning import clean_sequence
-        except ImportError:  # TODO(data helper): drop this guard once ekf/cleaning.py lands.
-            log.warning("ekf.cleaning is not available: running on the uncleaned tracks")
-        else:
-            seq, report = clean_sequence(
-                seq,
-                split_repeats=True,
-                min_disparity=config.min_disparity,
-                max_depth=config.max_depth,
-            )
-            info["cleaned"] = True
-            info["cleaning"] = _report_dict(report)
+        seq, report = clean_sequence(
+            seq, split_repeats=True, min_disparity=config.min_disparity, max_depth=None
+        )
+        info["cleaned"] = True
+        info["cleaning"] = _report_dict(report)
     info["track_origin"] = np.asarray(seq.track_origin, dtype=np.int64).tolist()
     return seq, info
 

@@ -34,7 +34,7 @@ from graph.factors import (
     triangulate_landmarks,
     usable_rows,
 )
-from graph.inputs import prepare_sequence
+from ekf.runner import prepare_sequence
 from graph.marginals import isam2_marginals
 from graph.pose_conversions import L, X, estimation_error, to_pose3
 from graph.settings import SmootherSettings
@@ -212,7 +212,7 @@ def run_isam2(
         "total_s": total,
         "n_landmarks": int(result.tracks.size),
         "n_stereo_factors": int(len(result.rows)),
-        "track_origin": np.asarray(cleaned.track_origin).tolist(),
+        "track_origin": cleaning.pop("track_origin"),
         "cleaning": cleaning,
         "settings": settings.to_dict(),
         "config": config.to_dict(),

@@ -54,7 +54,7 @@ from graph.factors import (
     usable_rows,
 )
 from graph.gyro_bias import BIAS_KEY, GyroBiasModel, corrected_deltas, estimate_bias
-from graph.inputs import prepare_sequence
+from ekf.runner import prepare_sequence
 from graph.marginals import batch_marginals
 from graph.pose_conversions import estimation_error
 from graph.settings import INITIALISERS, SmootherSettings
@@ -69,10 +69,8 @@ Progress = Callable[[int, int], None]
 
 def ekf_trajectory(seq: Sequence, config: FilterConfig) -> tuple[np.ndarray | None, str]:
     """Poses from the best EKF available (``ekf.estimators.ESTIMATORS``), or None."""
-    try:
-        from ekf.estimators import ESTIMATORS
-    except ImportError:
-        return None, "ekf.estimators not available"
+    from ekf.estimators import ESTIMATORS
+
     for name in EKF_INITIALISERS:
         if name in ESTIMATORS:
             est = ESTIMATORS[name](seq, config, None)
@@ -255,7 +253,7 @@ def run_smoother(
         "n_stereo_factors": int(len(rows)),
         "n_outliers_removed": n_outliers,
         "n_cheirality_dropped": n_cheirality,
-        "track_origin": np.asarray(cleaned.track_origin).tolist(),
+        "track_origin": cleaning.pop("track_origin"),
         "cleaning": cleaning,
         "settings": settings.to_dict(),
         "config": config.to_dict(),

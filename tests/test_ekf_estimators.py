@@ -1,8 +1,5 @@
 """The EKF estimators end to end on simulated drives (and, when present, on the shared 0027)."""
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -142,31 +139,19 @@ def test_joint_update_matches_dense_kalman_reference(noisy_sim, linearisation):
     np.testing.assert_allclose(st.lm_mean - m0, dx_ref[6:].reshape(-1, 3), atol=1e-9)
 
 
-def _data_dir():
-    return Path(os.environ.get("VISLAM_DATA", "/work/shared/data/kitti-pr3"))
-
-
 @pytest.mark.slow
 @pytest.mark.realdata
-def test_0027_slam_beats_dead_reckoning():
-    path = _data_dir() / "0027.npz"
-    gt_path = _data_dir() / "groundtruth" / "0027.txt"
-    if not (path.exists() and gt_path.exists()):
-        if os.environ.get("CI") == "true":
-            pytest.fail(f"shared data missing: {path}")
-        pytest.skip(f"shared data not found at {path}")
-    import sys
+def test_0027_slam_beats_dead_reckoning(drive_path, load_drive):
+    from eval.groundtruth import find_ground_truth
+    from eval.metrics import ate_rmse
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from ekf_accuracy import ate, load_groundtruth, load_sequence
-
-    seq = load_sequence(path)
-    gt = load_groundtruth(gt_path, seq.calibration.cam_T_imu)
-    n = gt.shape[0]
+    seq = load_drive("0027")
+    gt = find_ground_truth(drive_path("0027"))
+    assert gt is not None, "groundtruth/0027.txt not found beside 0027.npz"
     results = {}
     for mode in ["dead-reckoning", "ekf-decoupled", "ekf-joint"]:
         est = ESTIMATORS[mode](seq, FilterConfig())
-        results[mode] = ate(est.positions[:n], gt[:, :3, 3])[1]
+        results[mode] = ate_rmse(est.poses[gt.frames], gt.poses, align="se3")
     assert results["dead-reckoning"] == pytest.approx(16.4, abs=0.5)
     assert results["ekf-decoupled"] < results["dead-reckoning"]
     assert results["ekf-joint"] < results["dead-reckoning"]
