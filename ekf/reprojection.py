@@ -70,7 +70,6 @@ def fit_landmarks(
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):
         raise InputError(f"poses have shape {poses.shape}, expected (n, 4, 4)")
     cal = seq.calibration
-    M = cal.M
     obs = seq.obs
     frame = obs.frame_index
     z = obs.z

@@ -18,7 +18,6 @@ from pathlib import Path
 import numpy as np
 
 from ekf.config import VELOCITY_PAIRINGS, FilterConfig
-from ekf.errors import InputError
 from ekf.estimate import Estimate
 
 log = logging.getLogger(__name__)

@@ -37,7 +37,6 @@ from ekf.sequence import Sequence
 from graph.factors import (
     GraphProblem,
     NoiseModels,
-    StereoRows,
     build_graph,
     cheirality_ok,
     dead_reckoning,

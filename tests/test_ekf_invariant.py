@@ -226,7 +226,6 @@ def simulate(seed, n_frames=150, pixel_sigma=1.0, velocity_sigma=0.5, gyro_sigma
         z = z + rng.normal(scale=pixel_sigma, size=z.shape)
     # Tracks: split a landmark's visibility at gaps (a track never comes back).
     frames, lms, rows = [], [], []
-    track_of = {}
     prev = np.zeros(n_lm, dtype=bool)
     next_id = 0
     current = -np.ones(n_lm, dtype=np.int64)
@@ -382,5 +381,6 @@ def test_clean_tracks_runs_and_reports_the_cleaned_track_origin():
 
 
 def test_registered_in_the_estimator_registry():
-    estimators = pytest.importorskip("ekf.estimators")
-    assert estimators.ESTIMATORS["ekf-invariant"] is inv.run_invariant
+    from ekf.estimators import ESTIMATORS
+
+    assert ESTIMATORS["ekf-invariant"] is inv.run_invariant

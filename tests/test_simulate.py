@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import time
 from dataclasses import replace
 
@@ -216,9 +215,6 @@ def test_cli_writes_the_files(tmp_path, capsys):
     assert "--gyro-bias" in capsys.readouterr().err
 
 
-@pytest.mark.skipif(
-    importlib.util.find_spec("eval.loader") is None, reason="eval.loader not written yet"
-)
 def test_written_file_loads_back_as_the_same_sequence(tmp_path):
     from eval.loader import load_sequence
 
