@@ -167,10 +167,6 @@ def test_nees_command_writes_json_and_plot(tmp_path, capsys):
 
 
 def test_bench_on_a_folder_of_files_finds_ground_truth_and_landmarks(tmp_path):
-    from tests.test_run_cli import require_module
-
-    require_module("eval.loader")
-    require_module("eval.groundtruth")
     from eval.simulate import SimConfig, simulate, write_simulation
 
     data = tmp_path / "data"
