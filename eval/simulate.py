@@ -127,6 +127,11 @@ class SimConfig:
     mean_track_length: float = 10.0
     #: Probability per frame that a visible landmark without a track starts one.
     detect_probability: float = 0.3
+    #: Probability per frame (from frame 2 on) of a repeat event like those of the shared
+    #: drives (0027: 91 in 1106 frames): every track continuing into that frame repeats its
+    #: previous observation exactly (the tracker's image did not update) and then goes on.
+    #: After track cleaning each event leaves one interval without visual constraint.
+    repeat_event_rate: float = 0.0
     noise_free: bool = False
 
     def __post_init__(self) -> None:
@@ -151,7 +156,8 @@ class SimConfig:
                 f"simulation: far_fraction + ground_fraction must be <= 1, got "
                 f"{self.far_fraction} + {self.ground_fraction}"
             )
-        for key in ("straight_fraction", "far_fraction", "ground_fraction", "detect_probability"):
+        for key in ("straight_fraction", "far_fraction", "ground_fraction", "detect_probability",
+                    "repeat_event_rate"):
             value = getattr(self, key)
             if not 0.0 <= value <= 1.0:
                 raise InputError(f"simulation: {key} must be in [0, 1], got {value!r}")
@@ -299,9 +305,11 @@ def _place_landmarks(
 
 
 def _observe(
-    config: SimConfig, rng_tracks, rng_pixels, poses, points, point_arc, calib: Calibration
+    config: SimConfig, rng_tracks, rng_pixels, poses, points, point_arc, calib: Calibration,
+    repeat_frames: np.ndarray | None = None,
 ):
-    """Run the tracker over the first ``len(poses)`` frames.
+    """Run the tracker over the first ``len(poses)`` frames; at ``repeat_frames`` (bool per
+    frame) every continuing track repeats its previous observation exactly.
 
     Returns rows (frame, track, z) of the observations, the noise-free pixels of those rows,
     and the landmark of each track index.
@@ -313,6 +321,7 @@ def _observe(
     p_len = 1.0 / config.mean_track_length
     active = np.zeros(n_pts, dtype=bool)
     track_of = np.full(n_pts, -1, dtype=np.int64)
+    last_z = np.zeros((n_pts, 4))
     remaining = np.zeros(n_pts, dtype=np.int64)
     track_landmark: list[np.ndarray] = []
     next_id = 0
@@ -349,6 +358,10 @@ def _observe(
         ok = z[:, 0] - z[:, 2] >= config.min_disparity
         local, z = local[ok], z[ok]
         seen = lo + local
+        if repeat_frames is not None and repeat_frames[k]:
+            again = keep[local]
+            z[again] = last_z[seen[again]]
+        last_z[seen] = z
         new = seen[start[local]]
         track_of[new] = next_id + np.arange(new.size)
         remaining[new] = rng_tracks.geometric(p_len, new.size)
@@ -376,8 +389,9 @@ def _observe(
 
 def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
     """Simulate one drive (see the module docstring for the model)."""
-    streams = [np.random.default_rng(s) for s in np.random.SeedSequence(config.seed).spawn(5)]
-    rng_drive, rng_landmarks, rng_tracks, rng_velocity, rng_pixels = streams
+    # spawn(6)'s first five children equal spawn(5)'s: adding a stream changed no old drive
+    streams = [np.random.default_rng(s) for s in np.random.SeedSequence(config.seed).spawn(6)]
+    rng_drive, rng_landmarks, rng_tracks, rng_velocity, rng_pixels, rng_events = streams
     dt = 1.0 / config.rate_hz
     # Simulate past the last frame so that landmarks exist up to max_depth ahead of it.
     n_extra = int(np.ceil((_LOOKAHEAD_M + config.max_depth) / config.speed_min * config.rate_hz))
@@ -391,8 +405,9 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
     T = config.n_frames
     poses, u_true, timestamps = poses_all[:T], u_all[:T], t_all[:T]
     calib = Calibration(K=KITTI_K.copy(), baseline=KITTI_BASELINE, cam_T_imu=KITTI_CAM_T_IMU.copy())
+    repeat_frames = (rng_events.random(T) < config.repeat_event_rate) & (np.arange(T) >= 2)
     frame, track, z, _, track_landmark = _observe(
-        config, rng_tracks, rng_pixels, poses, points, point_arc, calib
+        config, rng_tracks, rng_pixels, poses, points, point_arc, calib, repeat_frames
     )
 
     noise = np.zeros((T, 6))

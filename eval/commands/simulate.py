@@ -54,6 +54,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="landmarks per metre of path (default %(default)s)",
     )
     parser.add_argument(
+        "--repeat-event-rate",
+        type=float,
+        default=d.repeat_event_rate,
+        help="probability per frame of a repeat event like the shared drives' (every continuing "
+        "track repeats its previous observation; 0027 has about 0.08) (default %(default)s)",
+    )
+    parser.add_argument(
         "--noise-free", action="store_true", help="no pixel, velocity or bias noise at all"
     )
 
@@ -74,6 +81,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         gyro_sigma=args.gyro_sigma,
         gyro_bias=tuple(bias),
         landmark_density=args.landmark_density,
+        repeat_event_rate=args.repeat_event_rate,
         noise_free=args.noise_free,
     )
 
