@@ -31,6 +31,19 @@ from ekf.sequence import Calibration, Sequence
 from graph.gyro_bias import BIAS_KEY, GyroBiasModel, biased_motion_factor, corrected_deltas
 from graph.pose_conversions import L, X, expmap_right_jacobian, to_pose3, twist_to_gtsam
 from graph.settings import SmootherSettings
+from graph.twist_smoothness import add_smoothness_factors
+
+
+@dataclass
+class TwistSmoothness:
+    """Where and how strongly the twist-smoothness prior applies: ``gaps`` (T-1,) the
+    intervals without vision, ``tau`` (T-1,) interval lengths, ``sigma`` (6,) rotation first."""
+
+    gaps: np.ndarray
+    tau: np.ndarray
+    sigma: np.ndarray
+    #: Python CustomFactors (exact, slow) instead of factors linearised at the initial values.
+    exact: bool = False
 
 
 # --- motion ---------------------------------------------------------------------------------
@@ -212,9 +225,13 @@ class GraphProblem:
 
 
 def build_graph(poses: np.ndarray, landmarks: np.ndarray, rows: StereoRows,
-                deltas: np.ndarray, noise: NoiseModels, bias: GyroBiasModel | None = None) -> GraphProblem:
+                deltas: np.ndarray, noise: NoiseModels, bias: GyroBiasModel | None = None,
+                smoothness: TwistSmoothness | None = None) -> GraphProblem:
     """The full batch graph: prior, motion, stereo and landmark-prior factors, with initial
     values ``poses`` (T, 4, 4) and ``landmarks`` (n_tracks, 3) (only the tracks in ``rows``).
+
+    With ``smoothness`` a twist-smoothness factor (:mod:`graph.twist_smoothness`) is added for
+    each of its gap intervals, after the landmark priors.
 
     With ``bias`` the motion factors share one gyro-bias variable (:mod:`graph.gyro_bias`),
     which gets a zero-mean prior and is added last (factor and value)."""
@@ -236,6 +253,9 @@ def build_graph(poses: np.ndarray, landmarks: np.ndarray, rows: StereoRows,
         p = landmarks[j]
         values.insert(L(int(j)), p)
         graph.add(gtsam.PriorFactorPoint3(L(int(j)), p, noise.landmark_prior))
+    if smoothness is not None:
+        add_smoothness_factors(graph, smoothness.gaps, smoothness.tau, smoothness.sigma,
+                               None if smoothness.exact else values)
     if bias is not None:
         values.insert(BIAS_KEY, np.asarray(bias.initial, dtype=float))
         graph.add(gtsam.PriorFactorPoint3(BIAS_KEY, np.zeros(3), bias.prior))
@@ -265,7 +285,7 @@ def fix_bias(problem: GraphProblem, values: gtsam.Values, deltas: np.ndarray, no
     graph.add(problem.graph.at(0))
     for k, delta in enumerate(corrected_deltas(deltas, bias.D, b)):
         graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), to_pose3(delta), noise.motion[k]))
-    for i in range(1 + n_motion, problem.graph.size() - 1):  # stereo, landmark priors; not the bias prior
+    for i in range(1 + n_motion, problem.graph.size() - 1):  # stereo, landmark priors, smoothness; not the bias prior
         graph.add(problem.graph.at(i))
     fixed = gtsam.Values(values)
     fixed.erase(BIAS_KEY)
@@ -282,21 +302,3 @@ def unconstrained_intervals(rows: StereoRows, n_frames: int) -> np.ndarray:
     covered = np.zeros(max(n_frames - 1, 0), dtype=bool)
     covered[f[:-1][linked]] = True
     return ~covered
-
-
-def smoothed_gap_motions(seq: Sequence, config: FilterConfig, gaps: np.ndarray,
-                         window: int) -> np.ndarray:
-    """Relative poses (T-1, 4, 4) as :func:`relative_motions`, except that on the intervals
-    ``gaps`` the angular velocity is the mean of the ``window`` samples centred on the
-    interval (``window`` even; samples ``k - window/2 + 1 .. k + window/2``, clamped at the
-    ends). The gyro noise is white while a car turns smoothly: on 0027 against ground truth
-    the rate error per interval drops from about 0.037 rad/s (mean of 2) to 0.026 (6)."""
-    twist, tau = interval_twists(seq, config.velocity_pairing)
-    twist = twist.copy()
-    half = max(int(window) // 2, 1)
-    w = seq.angular_velocity
-    T = seq.n_frames
-    for k in np.flatnonzero(gaps):
-        lo, hi = max(k - half + 1, 0), min(k + half, T - 1)
-        twist[k, 3:] = w[lo:hi + 1].mean(axis=0)
-    return se3_exp(tau[:, None] * twist)

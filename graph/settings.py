@@ -18,6 +18,8 @@ from ekf.errors import InputError
 INITIALISERS = ("ekf", "dead-reckoning", "isam2")
 #: How the smoother treats the gyro bias (SmootherSettings.gyro_bias).
 GYRO_BIAS_MODES = ("alternate", "joint", "off")
+#: How the smoother applies the twist-smoothness prior at gaps (SmootherSettings.gap_twist_prior).
+GAP_PRIOR_MODES = ("linearised", "exact", "off")
 
 
 @dataclass(frozen=True)
@@ -46,10 +48,11 @@ class SmootherSettings:
     #: bias variable in the graph; a Python CustomFactor per interval, several times slower
     #: per LM iteration) or "off".
     gyro_bias: str = "alternate"
-    #: On intervals no track spans (repeat events), the angular velocity is the mean of this
-    #: many samples centred on the interval instead of 2 (graph.factors.smoothed_gap_motions);
-    #: 2 or less: off.
-    gap_gyro_window: int = 6
+    #: On intervals no track spans, a prior predicting the twist from the two neighbouring
+    #: intervals (graph.twist_smoothness), its sigma measured on the drive itself:
+    #: "linearised" (default: relinearised each solve round, C++ factors), "exact" (Python
+    #: CustomFactors, about twice as slow) or "off".
+    gap_twist_prior: str = "linearised"
     #: Compute the pose and landmark marginal covariances.
     compute_marginals: bool = True
     #: iSAM2 relinearisation threshold and skip.
@@ -68,6 +71,9 @@ class SmootherSettings:
                 raise InputError(f"smoother setting {name!r} must be >= 1, got {getattr(self, name)!r}")
         if self.gyro_bias not in GYRO_BIAS_MODES:
             raise InputError(f"smoother setting 'gyro_bias' must be one of {GYRO_BIAS_MODES}, got {self.gyro_bias!r}")
+        if self.gap_twist_prior not in GAP_PRIOR_MODES:
+            raise InputError(f"smoother setting 'gap_twist_prior' must be one of {GAP_PRIOR_MODES}, "
+                             f"got {self.gap_twist_prior!r}")
         if int(self.rejection_rounds) < 0:
             raise InputError(f"smoother setting 'rejection_rounds' must be >= 0, got {self.rejection_rounds!r}")
         if self.absolute_error_tol < 0:

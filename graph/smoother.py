@@ -7,18 +7,21 @@ Steps, each timed (``est.info["timing"]``):
    from each track's largest-disparity observation, and tracks behind any of their cameras
    dropped (GTSAM's stereo factor fails silently there: constant residual, zero Jacobian).
 2. *build* the graph (:mod:`graph.factors`). On intervals no track spans (the repeat events
-   of the shared drives) the gyro is averaged over ``settings.gap_gyro_window`` samples. A
+   of the shared drives) a twist-smoothness prior (:mod:`graph.twist_smoothness`) predicts the
+   motion from the two neighbouring intervals, with a sigma measured on the drive itself. A
    constant gyro bias (:mod:`graph.gyro_bias`) is estimated from the initial trajectory and
    removed from every motion factor (``settings.gyro_bias="alternate"``), or estimated jointly
    as a graph variable (``"joint"``, slower).
-3. *optimise* with LM; then re-estimate the bias from the solution, remove stereo factors whose
-   residual exceeds ``settings.outlier_threshold_px`` (or whose point went behind the camera),
-   and solve again.
+3. *optimise* with LM; then re-estimate the bias (and the smoothness sigma, relinearising the
+   prior) from the solution, remove stereo factors whose residual exceeds
+   ``settings.outlier_threshold_px`` (or whose point went behind the camera), and solve again.
 4. *marginals*: pose and landmark covariances (conditional on the estimated bias), converted
    to the Estimate convention.
 
-On 0027 (ground truth, 2-core machine, load ~2): aligned ATE 5.06 m, KITTI t_rel 2.30 %
-(6.65 m, 3.00 % without the bias and the gap averaging); 0034 in about 20 s with marginals.
+On 0027 (ground truth, 2-core machine): aligned ATE 2.88 m, KITTI t_rel 1.55 % (5.06 m,
+2.30 % with a 6-sample gyro mean at the gaps instead of the smoothness prior; 6.65 m, 3.00 %
+with neither the bias nor any gap treatment); 0034 in about 18 s with marginals
+(benchmarks/smoother_timing.py).
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from ekf.sequence import Sequence
 from graph.factors import (
     GraphProblem,
     NoiseModels,
+    TwistSmoothness,
     build_graph,
     cheirality_ok,
     dead_reckoning,
@@ -46,7 +50,6 @@ from graph.factors import (
     landmarks_from_values,
     poses_from_values,
     relative_motions,
-    smoothed_gap_motions,
     stereo_residuals,
     triangulate_landmarks,
     unconstrained_intervals,
@@ -57,6 +60,7 @@ from ekf.runner import prepare_sequence
 from graph.marginals import batch_marginals
 from graph.pose_conversions import estimation_error
 from graph.settings import INITIALISERS, SmootherSettings
+from graph.twist_smoothness import smoothness_sigma
 
 log = logging.getLogger(__name__)
 
@@ -120,6 +124,20 @@ def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings) -> t
     return result, int(optimizer.iterations()), float(initial_error), final_error
 
 
+def _twist_smoothness(poses: np.ndarray, tau: np.ndarray, gaps: np.ndarray,
+                      exact: bool = False) -> TwistSmoothness | None:
+    """The twist-smoothness prior for the gap intervals, its sigma measured on ``poses``
+    (None when there is no gap or too little to measure it on)."""
+    if not np.any(gaps):
+        return None
+    sigma = smoothness_sigma(poses, tau, gaps)
+    if sigma is None:
+        return None
+    log.info("smoother: twist-smoothness prior on %d gap intervals, sigma %s (rad/s, m/s)",
+             int(gaps.sum()), np.array2string(sigma, precision=4))
+    return TwistSmoothness(gaps, tau, sigma, exact)
+
+
 def run_smoother(
     seq: Sequence,
     config: FilterConfig = FilterConfig(),
@@ -164,11 +182,10 @@ def run_smoother(
 
     tick = time.perf_counter()
     noise = NoiseModels.create(cleaned, config, settings, motion_covs)
-    if settings.gap_gyro_window > 2:
-        gaps = unconstrained_intervals(rows, T)
-        deltas = smoothed_gap_motions(cleaned, config, gaps, settings.gap_gyro_window)
-        log.info("smoother: %d intervals without vision use a %d-sample gyro mean",
-                 int(gaps.sum()), settings.gap_gyro_window)
+    gaps = unconstrained_intervals(rows, T)
+    smoothness = None
+    if settings.gap_twist_prior != "off":
+        smoothness = _twist_smoothness(poses0, cleaned.dt, gaps, settings.gap_twist_prior == "exact")
     bias = None  # the joint bias variable ("joint")
     b_hat = None  # the bias the motion factors are corrected for ("alternate")
     motion = deltas
@@ -180,7 +197,7 @@ def run_smoother(
         else:
             b_hat = estimate_bias(poses0, deltas, model.D, motion_covs, config.gyro_bias_sigma)
             motion = corrected_deltas(deltas, model.D, b_hat)
-    problem = build_graph(poses0, landmarks0, rows, motion, noise, bias)
+    problem = build_graph(poses0, landmarks0, rows, motion, noise, bias, smoothness)
     timing["build_s"] += time.perf_counter() - tick
 
     iterations: list[int] = []
@@ -215,7 +232,10 @@ def run_smoother(
         rows = rows.subset(final_keep)
         if bias is not None:
             bias.initial = np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
-        problem = build_graph(poses, landmarks, rows, motion, noise, bias)
+        if smoothness is not None:  # re-measured on the better trajectory
+            smoothness = _twist_smoothness(poses, cleaned.dt, unconstrained_intervals(rows, T),
+                                           smoothness.exact)
+        problem = build_graph(poses, landmarks, rows, motion, noise, bias, smoothness)
         timing["build_s"] += time.perf_counter() - tick
     report(3, 4)
 
