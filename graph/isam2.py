@@ -32,14 +32,19 @@ from graph.factors import (
     relative_motions,
     stereo_residuals,
     triangulate_landmarks,
+    unconstrained_intervals,
     usable_rows,
 )
 from ekf.runner import prepare_sequence
 from graph.marginals import isam2_marginals
 from graph.pose_conversions import L, X, estimation_error, to_pose3
 from graph.settings import SmootherSettings
+from graph.twist_smoothness import linearised, smoothness_factor, smoothness_sigma
 
 log = logging.getLogger(__name__)
+
+#: The twist-smoothness sigma at a gap is measured on the estimates of this many frames before it.
+_SIGMA_WINDOW = 200
 
 #: Observations of a track already in the graph are skipped when their residual against the
 #: current estimate exceeds this many times ``outlier_threshold_px`` (the pose is only
@@ -59,6 +64,32 @@ class Isam2Result:
     rejected: np.ndarray
     initialised: np.ndarray
     timing: dict
+    #: Gap intervals that got a twist-smoothness prior.
+    n_gap_priors: int = 0
+
+
+def _add_gap_prior(graph: gtsam.NonlinearFactorGraph, isam: gtsam.ISAM2, poses: np.ndarray, k: int,
+                   tau: np.ndarray, gaps: np.ndarray, settings: SmootherSettings) -> int:
+    """At frame ``k``, the twist-smoothness prior for the gap interval ``[k-2, k-1]`` on
+    ``X(k-3) .. X(k)`` (graph.twist_smoothness), its sigma measured on the estimates of the
+    last frames; linearised at the current estimates and the prediction of ``X(k)`` unless
+    ``settings.gap_twist_prior == "exact"``. Returns 1 if added, 0 if too early to measure."""
+    lo = max(k - _SIGMA_WINDOW, 0)
+    for j in range(k - 3, k):  # the latest estimates of the poses the factor touches
+        poses[j] = isam.calculateEstimatePose3(X(j)).matrix()
+    sigma = smoothness_sigma(poses[lo:k + 1], tau[lo:k], gaps[lo:k])
+    if sigma is None:
+        return 0
+    noise = gtsam.noiseModel.Diagonal.Sigmas(sigma)
+    factor = smoothness_factor(k - 2, tau[k - 3:k], noise)
+    if settings.gap_twist_prior == "exact":
+        graph.add(factor)
+    else:
+        point = gtsam.Values()
+        for j in range(k - 3, k + 1):
+            point.insert(X(j), to_pose3(poses[j]))
+        graph.add(linearised(factor, point))
+    return 1
 
 
 def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
@@ -72,6 +103,9 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     rejected = rejected.astype(np.int64)
     measured = rows.measured
     frame_ptr = np.searchsorted(rows.frame, np.arange(T + 1))  # rows are sorted by frame
+    # interval [k, k+1] without vision: known once frame k+1's observations are in
+    gaps = unconstrained_intervals(rows, T) if settings.gap_twist_prior != "off" else np.zeros(max(T - 1, 0), bool)
+    n_prior = 0
     build_s = time.perf_counter() - tick
 
     params = gtsam.ISAM2Params()
@@ -100,6 +134,8 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
             graph.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), to_pose3(deltas[k - 1]), noise.motion[k - 1]))
         values.insert(X(k), to_pose3(predicted))
         poses[k] = predicted
+        if k >= 3 and gaps[k - 2]:
+            n_prior += _add_gap_prior(graph, isam, poses, k, seq.dt, gaps, settings)
 
         a, b = frame_ptr[k], frame_ptr[k + 1]
         idx = np.arange(a, b)
@@ -171,6 +207,7 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
         rejected=rejected,
         initialised=initialised,
         timing={"build_s": build_s, "initialise_s": 0.0, "optimise_s": optimise_s, "marginals_s": 0.0},
+        n_gap_priors=n_prior,
     )
 
 
@@ -212,6 +249,7 @@ def run_isam2(
         "total_s": total,
         "n_landmarks": int(result.tracks.size),
         "n_stereo_factors": int(len(result.rows)),
+        "n_gap_priors": result.n_gap_priors,
         "track_origin": cleaning.pop("track_origin"),
         "cleaning": cleaning,
         "settings": settings.to_dict(),

@@ -170,3 +170,15 @@ def test_prior_improves_the_smoother_across_gaps(drive_with_events):
     # the linearised prior is as good as the exact one
     assert ate["on"] < 1.1 * ate["exact"], ate
 
+
+def test_prior_improves_isam2_across_gaps():
+    from graph.isam2 import run_isam2
+
+    sim = simulate(SimConfig(seed=2, n_frames=200, repeat_event_rate=0.08))
+    base = SmootherSettings(compute_marginals=False)
+    off = run_isam2(sim.sequence, FilterConfig(), settings=base.replace(gap_twist_prior="off"))
+    on = run_isam2(sim.sequence, FilterConfig(), settings=base)
+    assert off.info["n_gap_priors"] == 0 and on.info["n_gap_priors"] >= 5
+    ate_off = ate_rmse(off.poses, sim.poses, align="se3")
+    ate_on = ate_rmse(on.poses, sim.poses, align="se3")
+    assert ate_on < 0.9 * ate_off, (ate_on, ate_off)
