@@ -55,9 +55,11 @@ class SmootherSettings:
     gap_twist_prior: str = "linearised"
     #: Compute the pose and landmark marginal covariances.
     compute_marginals: bool = True
-    #: iSAM2 relinearisation threshold and skip.
-    isam2_relinearize_threshold: float = 0.05
-    isam2_relinearize_skip: int = 1
+    #: iSAM2 relinearisation threshold and skip (GTSAM's defaults). Relinearising at every
+    #: update with a 0.05 threshold gave the same estimate on 0027 in 6.7 times the time
+    #: (321 s against 48 s).
+    isam2_relinearize_threshold: float = 0.1
+    isam2_relinearize_skip: int = 10
 
     def __post_init__(self) -> None:
         positive = ("huber_k", "outlier_threshold_px", "landmark_prior_sigma", "min_depth",
