@@ -147,17 +147,14 @@ class FilterConfig:
 
     @classmethod
     def from_toml(cls, path: str | Path, section: str | None = "filter") -> "FilterConfig":
-        """Read settings from a TOML file (table ``[filter]`` if present, else the top level)."""
+        """Read settings from a TOML file (table ``[filter]`` if present, else the top level;
+        the tables of other parts, e.g. ``[smoother]``, are left to their readers)."""
         path = Path(path)
-        try:
-            with path.open("rb") as fh:
-                data = tomllib.load(fh)
-        except FileNotFoundError:
-            raise InputError(f"{path}: settings file not found") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(f"{path}: not valid TOML: {exc}") from None
+        data = read_toml(path)
         if section and isinstance(data.get(section), dict):
             data = data[section]
+        else:
+            data = {k: v for k, v in data.items() if k not in OTHER_TABLES}
         known = {f.name: f for f in fields(cls)}
         for key in data:
             if key not in known:
@@ -169,3 +166,19 @@ class FilterConfig:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+#: Tables of a settings file that belong to other parts of the toolkit (graph.settings).
+OTHER_TABLES = ("smoother",)
+
+
+def read_toml(path: str | Path) -> dict:
+    """The contents of a TOML settings file; a missing or invalid file is an InputError."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise InputError(f"{path}: settings file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not valid TOML: {exc}") from None

@@ -40,6 +40,7 @@ from ekf.estimate import Estimate
 from ekf.sequence import Observations, Sequence
 from eval.registry import SMOOTHER_INITIAL_FROM, SMOOTHERS, uses_initial
 from eval.runjob import RPE_DEFINITION, JobResult, Progress, run_estimator, trajectory_scores
+from graph.settings import SmootherSettings
 
 log = logging.getLogger(__name__)
 
@@ -163,11 +164,12 @@ def collect_sequences(paths: list[str], frames: int | None = None, seed: int = 0
 # --- jobs ------------------------------------------------------------------------------------
 
 
-def _job(seq: Sequence, key: str, name: str, config: FilterConfig, initial: Estimate | None):
+def _job(seq: Sequence, key: str, name: str, config: FilterConfig, initial: Estimate | None,
+         smoother: SmootherSettings | None = None):
     """Worker: one estimator on one sequence (module-level so worker processes can pickle it)."""
     t0 = time.perf_counter()
     try:
-        result = run_estimator(seq, name, config, progress=None, initial=initial)
+        result = run_estimator(seq, name, config, progress=None, initial=initial, smoother=smoother)
     except (EstimationError, ImportError) as exc:
         return JobFailure(key, name, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
     except Exception as exc:  # a crash of one estimator must not lose the whole benchmark
@@ -188,14 +190,15 @@ def run_jobs(
     jobs: int = 1,
     show_progress: bool = True,
     on_result: Callable[[JobResult | JobFailure], None] | None = None,
+    smoother: SmootherSettings | None = None,
 ) -> dict[tuple[str, str], JobResult | JobFailure]:
     """Run every estimator on every sequence; returns {(sequence key, estimator): result}.
 
     The smoother waits for its initialiser EKF on the same sequence (if that EKF is among
-    ``estimators``) and starts from its estimate.
+    ``estimators`` and ``smoother.init`` is ``"ekf"``) and starts from its estimate.
     """
     init_name = _initialiser(estimators)
-    waiting = {n for n in estimators if uses_initial(n) and init_name is not None}
+    waiting = {n for n in estimators if uses_initial(n, smoother) and init_name is not None}
     # The initialiser first, so the smoother can start as early as possible; the smoother last.
     order = sorted(
         (n for n in estimators if n not in waiting),
@@ -224,18 +227,20 @@ def run_jobs(
             queue = [(k, n, None) for k in sequences for n in order]
             while queue:
                 key, name, initial = queue.pop(0)
-                queue.extend(record(_job(sequences[key], key, name, config, initial)))
+                queue.extend(record(_job(sequences[key], key, name, config, initial, smoother)))
             return results
         with cf.ProcessPoolExecutor(max_workers=jobs) as pool:
             pending = {
-                pool.submit(_job, sequences[k], k, n, config, None) for k in sequences for n in order
+                pool.submit(_job, sequences[k], k, n, config, None, smoother)
+                for k in sequences for n in order
             }
             try:
                 while pending:
                     done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
                     for fut in done:
                         for key, name, initial in record(fut.result()):
-                            pending.add(pool.submit(_job, sequences[key], key, name, config, initial))
+                            pending.add(pool.submit(_job, sequences[key], key, name, config, initial,
+                                                    smoother))
             except BaseException:
                 for fut in pending:
                     fut.cancel()
@@ -419,14 +424,17 @@ def run_benchmark(
     show_progress: bool = True,
     settings: dict | None = None,
     latest_link: Path | None = None,
+    smoother: SmootherSettings | None = None,
 ) -> BenchOutput:
-    """Run, score, plot and write everything into ``out_dir`` (atomically)."""
+    """Run, score, plot and write everything into ``out_dir`` (atomically); ``smoother`` the
+    smoothers' settings (defaults when None)."""
     from eval.atomic import atomic_dir, atomic_symlink, write_json, write_text
     from eval.export import write_tum
 
     t0 = time.perf_counter()
     by_key = {bs.name: bs.sequence for bs in sequences}
-    outcomes = run_jobs(by_key, estimators, config, jobs, show_progress)
+    smoother = smoother if smoother is not None else SmootherSettings()
+    outcomes = run_jobs(by_key, estimators, config, jobs, show_progress, smoother=smoother)
     results = {
         "schema": SCHEMA,
         "rpe_definition": RPE_DEFINITION,
@@ -452,6 +460,7 @@ def run_benchmark(
             "estimators": list(estimators),
             "jobs": jobs,
             "filter": config.to_dict(),
+            "smoother": smoother.to_dict(),
             "sequences": [{"name": b.name, "path": b.path, **(b.origin or {})} for b in sequences],
             **(settings or {}),
         })
@@ -508,9 +517,11 @@ def monte_carlo_nees(
     frames: int | None = None,
     jobs: int = 1,
     show_progress: bool = True,
+    smoother: SmootherSettings | None = None,
 ) -> dict:
     """ANEES of pose (6 dof, steps 1..T-1) and landmarks (3 dof) over ``runs`` noise draws of
     one simulated drive (seed ``seed``); the nees.json content."""
+    smoother = smoother if smoother is not None else SmootherSettings()
     from eval.consistency import LANDMARK_DOF, POSE_DOF, anees, chi2_bounds, pose_nees
     from eval.simulate import DEFAULT_SIM, simulate
 
@@ -540,7 +551,7 @@ def monte_carlo_nees(
         landmark[res.estimator][i] = landmark_nees_by_source(est, truth.landmarks)
         runtime[res.estimator].append(res.wall_s)
 
-    outcomes = run_jobs(seqs, estimators, config, jobs, show_progress, on_result=reduce)
+    outcomes = run_jobs(seqs, estimators, config, jobs, show_progress, on_result=reduce, smoother=smoother)
     outcomes.clear()
     out = {
         "runs": runs,
@@ -555,6 +566,7 @@ def monte_carlo_nees(
                       "inside_fraction = share of steps / landmarks inside the bounds",
         "simulation": dataclasses.asdict(sim_config),
         "filter": config.to_dict(),
+        "smoother": smoother.to_dict(),
         "estimators": {},
     }
     for n in estimators:

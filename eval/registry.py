@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Callable, Protocol
 
 from ekf.errors import InputError
+from graph.settings import SmootherSettings
 
 #: Every estimator, in the order tables and plots list them.
 ESTIMATOR_NAMES: tuple[str, ...] = (
@@ -37,7 +38,7 @@ _EKF_NAMES = ("dead-reckoning", "mapping", "ekf-decoupled", "ekf-joint", "ekf-in
 
 
 class EstimatorFn(Protocol):
-    def __call__(self, seq, config, progress=None, initial=None): ...
+    def __call__(self, seq, config, progress=None, initial=None, smoother=None): ...
 
 
 def get_estimator(name: str) -> Callable:
@@ -47,22 +48,24 @@ def get_estimator(name: str) -> Callable:
 
         fn = ESTIMATORS[name]
 
-        def run_ekf(seq, config, progress=None, initial=None):
+        def run_ekf(seq, config, progress=None, initial=None, smoother=None):
             return fn(seq, config, progress)
 
         return run_ekf
     if name == "smoother":
         from graph.smoother import run_smoother
 
-        def run_batch(seq, config, progress=None, initial=None):
-            return run_smoother(seq, config, initial=initial, progress=progress)
+        def run_batch(seq, config, progress=None, initial=None, smoother=None):
+            settings = smoother if smoother is not None else SmootherSettings()
+            return run_smoother(seq, config, initial=initial, progress=progress, settings=settings)
 
         return run_batch
     if name == "smoother-isam2":
         from graph.isam2 import run_isam2
 
-        def run_incremental(seq, config, progress=None, initial=None):
-            return run_isam2(seq, config, progress=progress)
+        def run_incremental(seq, config, progress=None, initial=None, smoother=None):
+            settings = smoother if smoother is not None else SmootherSettings()
+            return run_isam2(seq, config, progress=progress, settings=settings)
 
         return run_incremental
     raise InputError(f"unknown estimator {name!r}; valid names: {', '.join(ESTIMATOR_NAMES)}")
@@ -84,6 +87,7 @@ def parse_estimator_list(text: str | None, default: tuple[str, ...]) -> list[str
     return [n for n in ESTIMATOR_NAMES if n in names]
 
 
-def uses_initial(name: str) -> bool:
-    """Whether estimator ``name`` can start from another estimator's result."""
-    return name == "smoother"
+def uses_initial(name: str, smoother: SmootherSettings | None = None) -> bool:
+    """Whether estimator ``name`` starts from another estimator's result (the batch smoother,
+    when it is initialised from the EKF)."""
+    return name == "smoother" and (smoother is None or smoother.init == "ekf")

@@ -17,8 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ekf.config import VELOCITY_PAIRINGS, FilterConfig
+from ekf.config import VELOCITY_PAIRINGS, FilterConfig, read_toml
 from ekf.estimate import Estimate
+from graph.settings import GAP_PRIOR_MODES, INITIALISERS, SmootherSettings
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +71,11 @@ def add_filter_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--max-depth", type=float, metavar="M", help="reject points beyond this depth")
     g.add_argument("--min-disparity", type=float, metavar="PX", help="reject smaller disparities")
+    s = parser.add_argument_group("smoother settings (override the [smoother] table of --config)")
+    s.add_argument("--smoother-init", choices=INITIALISERS,
+                   help="the batch smoother's initial trajectory (default ekf)")
+    s.add_argument("--gap-prior", choices=GAP_PRIOR_MODES,
+                   help="twist-smoothness prior on intervals without vision (default linearised)")
 
 
 def filter_config_from_args(args: argparse.Namespace) -> FilterConfig:
@@ -89,6 +95,23 @@ def filter_config_from_args(args: argparse.Namespace) -> FilterConfig:
     if getattr(args, "gyro_bias", None) is not None:
         changes["gyro_bias"] = bool(args.gyro_bias)
     return config.replace(**changes) if changes else config
+
+
+def smoother_settings_from_args(args: argparse.Namespace) -> SmootherSettings:
+    """SmootherSettings from the ``[smoother]`` table of ``--config`` (if any) overridden by
+    ``--smoother-init`` and ``--gap-prior``."""
+    settings = SmootherSettings()
+    path = getattr(args, "config", None)
+    if path:
+        table = read_toml(path).get("smoother")
+        if table is not None:
+            settings = SmootherSettings.from_mapping(table, f"{path} [smoother]")
+    changes = {}
+    if getattr(args, "smoother_init", None):
+        changes["init"] = args.smoother_init
+    if getattr(args, "gap_prior", None):
+        changes["gap_twist_prior"] = args.gap_prior
+    return settings.replace(**changes) if changes else settings
 
 
 def environment_settings() -> dict:
@@ -163,14 +186,16 @@ class JobResult:
 
 
 def run_estimator(
-    seq, name: str, config: FilterConfig, progress=None, initial: Estimate | None = None
+    seq, name: str, config: FilterConfig, progress=None, initial: Estimate | None = None,
+    smoother: SmootherSettings | None = None,
 ) -> JobResult:
-    """Run estimator ``name`` on ``seq`` and time it (wall clock, seconds)."""
+    """Run estimator ``name`` on ``seq`` and time it (wall clock, seconds); ``smoother`` the
+    smoothers' settings (defaults when None; the EKFs ignore them)."""
     from eval.registry import get_estimator
 
     fn = get_estimator(name)
     t0 = time.perf_counter()
-    est = fn(seq, config, progress=progress, initial=initial)
+    est = fn(seq, config, progress=progress, initial=initial, smoother=smoother)
     wall = time.perf_counter() - t0
     if est.n_frames != seq.n_frames:
         from ekf.errors import EstimationError

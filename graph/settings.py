@@ -24,7 +24,14 @@ GAP_PRIOR_MODES = ("linearised", "exact", "off")
 
 @dataclass(frozen=True)
 class SmootherSettings:
-    """Robust kernel, stopping rule, outlier rejection and regularisation of the smoother."""
+    """Robust kernel, stopping rule, outlier rejection and regularisation of the smoother.
+
+    From the command line: ``--smoother-init``, ``--gap-prior``, or a ``[smoother]`` table in
+    the ``--config`` TOML file with any of these field names."""
+
+    #: Where the batch smoother's initial trajectory comes from (INITIALISERS): the EKF's
+    #: estimate, dead reckoning, or iSAM2 run first.
+    init: str = "ekf"
 
     #: Huber threshold in whitened units (multiples of the pixel sigma).
     huber_k: float = 1.345
@@ -71,6 +78,8 @@ class SmootherSettings:
         for name in ("max_iterations", "isam2_relinearize_skip"):
             if int(getattr(self, name)) < 1:
                 raise InputError(f"smoother setting {name!r} must be >= 1, got {getattr(self, name)!r}")
+        if self.init not in INITIALISERS:
+            raise InputError(f"smoother setting 'init' must be one of {INITIALISERS}, got {self.init!r}")
         if self.gyro_bias not in GYRO_BIAS_MODES:
             raise InputError(f"smoother setting 'gyro_bias' must be one of {GYRO_BIAS_MODES}, got {self.gyro_bias!r}")
         if self.gap_twist_prior not in GAP_PRIOR_MODES:
@@ -90,3 +99,24 @@ class SmootherSettings:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    @classmethod
+    def from_mapping(cls, data: dict, source: str) -> "SmootherSettings":
+        """Settings from a mapping (a TOML table); ``source`` names it in errors."""
+        if not isinstance(data, dict):
+            raise InputError(f"{source}: expected a table of smoother settings, got {type(data).__name__}")
+        known = {f.name: f for f in dataclasses.fields(cls)}
+        for key, value in data.items():
+            if key not in known:
+                raise InputError(f"{source}: unknown smoother setting {key!r} "
+                                 f"(known: {', '.join(sorted(known))})")
+            default = getattr(cls(), key)
+            if isinstance(default, bool) != isinstance(value, bool) or (
+                    not isinstance(default, bool) and not isinstance(value, type(default))
+                    and not (isinstance(default, float) and isinstance(value, int))):
+                raise InputError(f"{source}: smoother setting {key!r} must be a "
+                                 f"{type(default).__name__}, got {value!r}")
+        try:
+            return cls(**data)
+        except InputError as exc:
+            raise InputError(f"{source}: {exc}") from None

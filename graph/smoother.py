@@ -142,16 +142,17 @@ def run_smoother(
     seq: Sequence,
     config: FilterConfig = FilterConfig(),
     *,
-    init: str = "ekf",
+    init: str | None = None,
     initial: Estimate | None = None,
     settings: SmootherSettings = SmootherSettings(),
     progress: Progress | None = None,
 ) -> Estimate:
     """Batch Levenberg-Marquardt smoother over the whole sequence (estimator ``smoother``).
 
-    ``init``: ``"ekf"`` (default; falls back to dead reckoning with a warning when no EKF is
-    registered), ``"dead-reckoning"`` or ``"isam2"``; ``initial`` an estimate whose poses to
-    start from instead. ``progress(done, total)`` is called after each stage (4 in all).
+    ``init``: ``"ekf"`` (falls back to dead reckoning with a warning when no EKF is registered),
+    ``"dead-reckoning"`` or ``"isam2"``; None takes ``settings.init`` (default ``"ekf"``).
+    ``initial`` an EKF estimate to start from instead of running the EKF again (used only when
+    the initialisation is ``"ekf"``). ``progress(done, total)`` is called after each stage (4 in all).
     Landmarks are indexed by the tracks of the cleaned sequence (``info["track_origin"]`` maps
     them to the source file's columns).
     """
@@ -159,6 +160,11 @@ def run_smoother(
     report = progress or (lambda done, total: None)
     start = time.perf_counter()
 
+    init = settings.init if init is None else init
+    if init not in INITIALISERS:
+        raise InputError(f"smoother init must be one of {INITIALISERS}, got {init!r}")
+    if initial is not None and init != "ekf":
+        initial = None  # the caller asked for another start
     cleaned, cleaning = prepare_sequence(seq, config)
     T, M, calib = cleaned.n_frames, cleaned.n_tracks, cleaned.calibration
     deltas, motion_covs = relative_motions(cleaned, config)

@@ -113,7 +113,7 @@ def test_failed_estimator_is_recorded_with_null_figures(tmp_path, monkeypatch):
 
     def fake(name):
         if name == "ekf-joint":
-            def broken(seq, config, progress=None, initial=None):
+            def broken(seq, config, progress=None, initial=None, smoother=None):
                 raise EstimationError("ekf-joint: innovation covariance not positive definite")
             return broken
         return real(name)

@@ -48,3 +48,17 @@ def test_toml(tmp_path):
         FilterConfig.from_toml(p)
     with pytest.raises(InputError, match="not found"):
         FilterConfig.from_toml(tmp_path / "missing.toml")
+
+
+def test_toml_leaves_the_smoother_table_to_the_smoother(tmp_path):
+    from graph.settings import SmootherSettings
+
+    p = tmp_path / "s.toml"
+    p.write_text('pixel_sigma = 2.0\n[smoother]\ninit = "isam2"\n')
+    assert FilterConfig.from_toml(p).pixel_sigma == 2.0
+    p.write_text('[filter]\npixel_sigma = 2.0\n[smoother]\ninit = "isam2"\nhuber_k = 2\n')
+    assert FilterConfig.from_toml(p).pixel_sigma == 2.0
+    s = SmootherSettings.from_mapping({"init": "isam2", "huber_k": 2}, "s.toml [smoother]")
+    assert s.init == "isam2" and s.huber_k == 2.0
+    with pytest.raises(InputError, match=r"s\.toml \[smoother\].*'gap_twist_prior'"):
+        SmootherSettings.from_mapping({"gap_twist_prior": True}, "s.toml [smoother]")

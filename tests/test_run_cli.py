@@ -110,3 +110,40 @@ def test_run_leaves_nothing_when_the_estimator_fails(sim_file, tmp_path, monkeyp
     out = tmp_path / "out"
     assert main(["run", str(sim_file), "-e", "dead-reckoning", "--out", str(out), "-q"]) == 130
     assert list(tmp_path.iterdir()) == []
+
+
+def test_smoother_settings_from_the_settings_file_and_flags(sim_file, tmp_path):
+    toml = tmp_path / "s.toml"
+    # filter settings at the top level, smoother settings in their own table
+    toml.write_text('pixel_sigma = 1.0\n[smoother]\ninit = "dead-reckoning"\ngap_twist_prior = "off"\n'
+                    'max_iterations = 50\n')
+    out = tmp_path / "out"
+    rc = main(["run", str(sim_file), "-e", "smoother", "--out", str(out), "-q",
+               "--config", str(toml), "--gap-prior", "exact"])
+    assert rc == 0
+    settings = json.loads((out / "settings.json").read_text())
+    assert settings["filter"]["pixel_sigma"] == 1.0
+    s = settings["smoother"]
+    assert (s["init"], s["gap_twist_prior"], s["max_iterations"]) == ("dead-reckoning", "exact", 50)
+    est = Estimate.load_npz(out / "estimate.npz")
+    assert est.info["init"] == "dead-reckoning"
+    assert est.info["settings"]["gap_twist_prior"] == "exact"
+
+
+@pytest.mark.parametrize(
+    "table, fault",
+    [
+        ("[smoother]\nbogus = 1\n", "bogus"),
+        ('[smoother]\ninit = "magic"\n', "init"),
+        ('[smoother]\nmax_iterations = "many"\n', "max_iterations"),
+    ],
+)
+def test_bad_smoother_settings_exit_2_naming_file_and_key(table, fault, sim_file, tmp_path_factory,
+                                                          tmp_path, capsys):
+    toml = tmp_path_factory.mktemp("settings") / "bad.toml"
+    toml.write_text(table)
+    out = tmp_path / "out"
+    assert main(["run", str(sim_file), "-e", "smoother", "--out", str(out), "-q", "--config", str(toml)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "bad.toml" in err and fault in err, err
+    assert not out.exists()

@@ -38,10 +38,11 @@ def run(args: argparse.Namespace) -> int:
     from ekf.errors import InputError
     from eval.benchmark import collect_sequences, default_out_dir, run_benchmark
     from eval.registry import DEFAULT_BENCH, parse_estimator_list
-    from eval.runjob import environment_settings, filter_config_from_args
+    from eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
 
     estimators = parse_estimator_list(args.estimators, DEFAULT_BENCH)
     config = filter_config_from_args(args)
+    smoother = smoother_settings_from_args(args)
     if args.frames is not None and args.frames < 2:
         raise InputError(f"--frames must be >= 2, got {args.frames}")
     if args.frames is not None and args.paths:
@@ -59,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         latest = Path("results") / "latest"
     result = run_benchmark(
         sequences, estimators, config, out, jobs=jobs, show_progress=not args.quiet,
-        settings=environment_settings(), latest_link=latest,
+        settings=environment_settings(), latest_link=latest, smoother=smoother,
     )
     if not args.quiet:
         print(result.summary)

@@ -38,10 +38,11 @@ def run(args: argparse.Namespace) -> int:
     from eval.atomic import atomic_dir, write_json
     from eval.benchmark import monte_carlo_nees
     from eval.registry import parse_estimator_list
-    from eval.runjob import environment_settings, filter_config_from_args
+    from eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
 
     estimators = parse_estimator_list(args.estimators, NEES_DEFAULT)
     config = filter_config_from_args(args)
+    smoother = smoother_settings_from_args(args)
     if args.runs < 1:
         raise InputError(f"--runs must be >= 1, got {args.runs}")
     if args.frames is not None and args.frames < 2:
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     result = monte_carlo_nees(args.runs, args.seed, estimators, config, frames=args.frames,
                               jobs=min(jobs, args.runs * len(estimators)),
-                              show_progress=not args.quiet)
+                              show_progress=not args.quiet, smoother=smoother)
     result["settings"] = environment_settings()
     with atomic_dir(out) as tmp:
         write_json(tmp / "nees.json", result)

@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
         environment_settings,
         filter_config_from_args,
         run_estimator,
+        smoother_settings_from_args,
         trajectory_scores,
         write_run_outputs,
     )
@@ -47,11 +48,12 @@ def run(args: argparse.Namespace) -> int:
     # Everything that can be wrong with the input is checked before anything is written.
     get_estimator(args.estimator)
     config = filter_config_from_args(args)
+    smoother = smoother_settings_from_args(args)
     seq = load_sequence(args.file, clean=False)
     gt = find_ground_truth(args.file, override=args.gt)
 
     with Progress(f"{args.estimator} {seq.name}", total=seq.n_frames, enabled=not args.quiet) as bar:
-        job = run_estimator(seq, args.estimator, config, progress=bar)
+        job = run_estimator(seq, args.estimator, config, progress=bar, smoother=smoother)
     est = job.estimate
     metrics = {
         "sequence": seq.name,
@@ -69,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
         "ground_truth": _gt_path(gt, args.gt),
         "estimator": args.estimator,
         "filter": config.to_dict(),
+        **({"smoother": smoother.to_dict()} if args.estimator.startswith("smoother") else {}),
         **environment_settings(),
     }
     with atomic_dir(args.out) as tmp:
