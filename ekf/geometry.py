@@ -16,6 +16,8 @@ vectorised. Small angles switch to Taylor series to stay accurate to machine pre
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 _SMALL = 1e-6
@@ -75,6 +77,12 @@ def _series(theta: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:
     return out
 
 
+#: Taylor coefficients (in t^2) of A = sin t / t, B = (1 - cos t) / t^2, C = (t - sin t) / t^3.
+_A_SERIES = (1.0, -1 / 6, 1 / 120, -1 / 5040, 1 / 362880)
+_B_SERIES = (1 / 2, -1 / 24, 1 / 720, -1 / 40320, 1 / 3628800)
+_C_SERIES = (1 / 6, -1 / 120, 1 / 5040, -1 / 362880, 1 / 39916800)
+
+
 def _theta_coeffs(theta: np.ndarray):
     """A = sin t / t, B = (1 - cos t) / t^2, C = (t - sin t) / t^3.
 
@@ -84,16 +92,25 @@ def _theta_coeffs(theta: np.ndarray):
     small = theta < _SERIES
     t = np.where(small, 1.0, theta)
     t2 = t * t
-    A = np.where(small, _series(theta, (1.0, -1 / 6, 1 / 120, -1 / 5040, 1 / 362880)), np.sin(t) / t)
-    B = np.where(
-        small, _series(theta, (1 / 2, -1 / 24, 1 / 720, -1 / 40320, 1 / 3628800)), (1.0 - np.cos(t)) / t2
-    )
-    C = np.where(
-        small,
-        _series(theta, (1 / 6, -1 / 120, 1 / 5040, -1 / 362880, 1 / 39916800)),
-        (t - np.sin(t)) / (t2 * t),
-    )
+    A = np.where(small, _series(theta, _A_SERIES), np.sin(t) / t)
+    B = np.where(small, _series(theta, _B_SERIES), (1.0 - np.cos(t)) / t2)
+    C = np.where(small, _series(theta, _C_SERIES), (t - np.sin(t)) / (t2 * t))
     return A, B, C
+
+
+def theta_coeffs_scalar(theta: float) -> tuple[float, float, float]:
+    """:func:`_theta_coeffs` for one angle, in plain floats (for single-vector hot loops)."""
+    if theta < _SERIES:
+        t2 = theta * theta
+        out = []
+        for coeffs in (_A_SERIES, _B_SERIES, _C_SERIES):
+            v = 0.0
+            for c in reversed(coeffs):
+                v = v * t2 + c
+            out.append(v)
+        return out[0], out[1], out[2]
+    s, c = math.sin(theta), math.cos(theta)
+    return s / theta, (1.0 - c) / (theta * theta), (theta - s) / (theta ** 3)
 
 
 def so3_exp(phi: np.ndarray) -> np.ndarray:

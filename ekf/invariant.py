@@ -63,7 +63,7 @@ from ekf.geometry import (
     so3_left_jacobian_inv,
     so3_log,
 )
-from ekf.prediction import se3_exp_single, se3_left_jacobian
+from ekf.prediction import se3_exp_single, se3_left_jacobian, so3_exp_and_left_jacobian
 from ekf.runner import blas_limits, interval_twists, prepare_sequence
 from ekf.sequence import Sequence
 
@@ -84,21 +84,6 @@ def landmark_offset(gyro_bias: bool) -> int:
 # --------------------------------------------------------------------------------------
 # Group math of SE_{1+K}(3)
 # --------------------------------------------------------------------------------------
-def _so3_exp_and_jl(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``so3_exp(phi)`` and ``so3_left_jacobian(phi)`` of one vector, without batch overhead."""
-    th2 = float(phi @ phi)
-    W = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
-    W2 = W @ W
-    if th2 < 1e-12:
-        a, b, c = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
-    else:
-        th = np.sqrt(th2)
-        s, co = np.sin(th), np.cos(th)
-        a, b, c = s / th, (1.0 - co) / th2, (th - s) / (th2 * th)
-    I = np.eye(3)
-    return I + a * W + b * W2, I + b * W + c * W2
-
-
 def retract(
     T: np.ndarray, landmarks: np.ndarray, delta: np.ndarray, gyro_bias: np.ndarray | None = None
 ):
@@ -107,7 +92,7 @@ def retract(
     ``delta`` is ordered as the error state. Returns ``(T, landmarks, gyro_bias)``.
     """
     delta = np.asarray(delta, dtype=float)
-    Rd, J = _so3_exp_and_jl(delta[R_IDX])
+    Rd, J = so3_exp_and_left_jacobian(delta[R_IDX])
     off = landmark_offset(gyro_bias is not None)
     T_new = np.eye(4)
     T_new[:3, :3] = Rd @ T[:3, :3]

@@ -19,7 +19,8 @@ walk of density ``sigma_walk`` (variance ``sigma_walk^2 tau`` per step).
 Public building blocks (also used by ``ekf/invariant.py``):
 :func:`paired_velocities`, :func:`motion_increment`, :func:`predict_mean`,
 :func:`prediction_jacobian`, :func:`process_noise`, :func:`predict_pose`,
-:func:`se3_left_jacobian`, :func:`bias_jacobian`.
+:func:`se3_left_jacobian`, :func:`bias_jacobian`, :func:`se3_exp_single`,
+:func:`so3_exp_and_left_jacobian`.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import math
 import numpy as np
 
 from ekf.errors import InputError
-from ekf.geometry import adjoint, curly_hat, se3_exp
+from ekf.geometry import adjoint, curly_hat, se3_exp, theta_coeffs_scalar
 
 #: Selects the angular rows of a twist: ``u - GYRO_SELECT @ b`` removes a gyro bias ``b``.
 GYRO_SELECT = np.vstack([np.zeros((3, 3)), np.eye(3)])
@@ -52,22 +53,24 @@ def paired_velocities(velocities: np.ndarray, pairing: str) -> np.ndarray:
     raise InputError(f"velocity pairing must be 'current', 'next' or 'mean', got {pairing!r}")
 
 
+def so3_exp_and_left_jacobian(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``so3_exp(phi)`` and ``so3_left_jacobian(phi)`` of one vector (3,), without batching
+    overhead (hot loop): ``I + A W + B W^2`` and ``I + B W + C W^2``, ``W = phi^``."""
+    p1, p2, p3 = float(phi[0]), float(phi[1]), float(phi[2])
+    A, B, C = theta_coeffs_scalar(math.sqrt(p1 * p1 + p2 * p2 + p3 * p3))
+    W = np.array([[0.0, -p3, p2], [p3, 0.0, -p1], [-p2, p1, 0.0]])
+    W2 = W @ W
+    I3 = np.eye(3)
+    return I3 + A * W + B * W2, I3 + B * W + C * W2
+
+
 def se3_exp_single(xi: np.ndarray) -> np.ndarray:
     """:func:`ekf.geometry.se3_exp` for one twist (6,), without batching overhead (hot loop)."""
     x = np.asarray(xi, dtype=float)
-    p1, p2, p3 = float(x[3]), float(x[4]), float(x[5])
-    th2 = p1 * p1 + p2 * p2 + p3 * p3
-    if th2 < 1e-10:
-        A, B, C = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
-    else:
-        th = math.sqrt(th2)
-        s, c = math.sin(th), math.cos(th)
-        A, B, C = s / th, (1.0 - c) / th2, (th - s) / (th2 * th)
-    W = np.array([[0.0, -p3, p2], [p3, 0.0, -p1], [-p2, p1, 0.0]])
-    W2 = W @ W
+    R, J = so3_exp_and_left_jacobian(x[3:])
     out = np.eye(4)
-    out[:3, :3] += A * W + B * W2
-    out[:3, 3] = x[:3] + (B * W + C * W2) @ x[:3]
+    out[:3, :3] = R
+    out[:3, 3] = J @ x[:3]
     return out
 
 

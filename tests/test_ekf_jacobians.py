@@ -199,6 +199,18 @@ def test_se3_exp_single_matches_geometry():
         np.testing.assert_allclose(se3_exp_single(xi), batched(xi), atol=1e-14, rtol=1e-12)
 
 
+def test_so3_exp_and_left_jacobian_match_geometry():
+    from ekf.geometry import so3_exp, so3_left_jacobian
+    from ekf.prediction import so3_exp_and_left_jacobian
+
+    rng = np.random.default_rng(8)
+    for scale in (1e-9, 1e-6, 1e-4, 0.3, 2.0):
+        phi = rng.normal(size=3) * scale
+        R, J = so3_exp_and_left_jacobian(phi)
+        np.testing.assert_allclose(R, so3_exp(phi), atol=1e-14, rtol=1e-12)
+        np.testing.assert_allclose(J, so3_left_jacobian(phi), atol=1e-14, rtol=1e-12)
+
+
 # --- the gauge nullspace of the joint EKF (observability-constrained / FEJ linearisation) ---
 
 
