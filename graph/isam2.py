@@ -39,7 +39,7 @@ from ekf.runner import prepare_sequence
 from graph.marginals import isam2_marginals
 from graph.pose_conversions import L, X, estimation_error, to_pose3
 from graph.settings import SmootherSettings
-from graph.twist_smoothness import linearised, smoothness_factor, smoothness_sigma
+from graph.twist_smoothness import gap_prior, smoothness_sigma
 
 log = logging.getLogger(__name__)
 
@@ -80,15 +80,12 @@ def _add_gap_prior(graph: gtsam.NonlinearFactorGraph, isam: gtsam.ISAM2, poses: 
     sigma = smoothness_sigma(poses[lo:k + 1], tau[lo:k], gaps[lo:k])
     if sigma is None:
         return 0
-    noise = gtsam.noiseModel.Diagonal.Sigmas(sigma)
-    factor = smoothness_factor(k - 2, tau[k - 3:k], noise)
-    if settings.gap_twist_prior == "exact":
-        graph.add(factor)
-    else:
+    point = None
+    if settings.gap_twist_prior != "exact":
         point = gtsam.Values()
         for j in range(k - 3, k + 1):
             point.insert(X(j), to_pose3(poses[j]))
-        graph.add(linearised(factor, point))
+    graph.add(gap_prior(k - 2, tau, sigma, point))
     return 1
 
 

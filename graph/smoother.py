@@ -83,16 +83,17 @@ def ekf_trajectory(seq: Sequence, config: FilterConfig) -> tuple[np.ndarray | No
 
 def initial_trajectory(seq: Sequence, cleaned: Sequence, config: FilterConfig, init: str,
                        initial: Estimate | None, settings: SmootherSettings) -> tuple[np.ndarray, str]:
-    """The trajectory LM starts from and a word on where it came from."""
-    if initial is not None:
+    """The trajectory LM starts from and a word on where it came from; ``initial`` (an EKF
+    estimate already computed) is used only when ``init`` is ``"ekf"``."""
+    if init not in INITIALISERS:
+        raise InputError(f"smoother init must be one of {INITIALISERS}, got {init!r}")
+    if initial is not None and init == "ekf":
         poses = np.asarray(initial.poses, dtype=float)
         if poses.shape != (seq.n_frames, 4, 4) or not np.all(np.isfinite(poses)):
             raise InputError(
                 f"initial estimate: poses must be finite with shape ({seq.n_frames}, 4, 4), "
                 f"got {poses.shape}")
         return poses, f"given ({initial.estimator})"
-    if init not in INITIALISERS:
-        raise InputError(f"smoother init must be one of {INITIALISERS}, got {init!r}")
     if init == "ekf":
         poses, source = ekf_trajectory(seq, config)
         if poses is not None:
@@ -161,10 +162,6 @@ def run_smoother(
     start = time.perf_counter()
 
     init = settings.init if init is None else init
-    if init not in INITIALISERS:
-        raise InputError(f"smoother init must be one of {INITIALISERS}, got {init!r}")
-    if initial is not None and init != "ekf":
-        initial = None  # the caller asked for another start
     cleaned, cleaning = prepare_sequence(seq, config)
     T, M, calib = cleaned.n_frames, cleaned.n_tracks, cleaned.calibration
     deltas, motion_covs = relative_motions(cleaned, config)
@@ -188,10 +185,10 @@ def run_smoother(
 
     tick = time.perf_counter()
     noise = NoiseModels.create(cleaned, config, settings, motion_covs)
-    gaps = unconstrained_intervals(rows, T)
     smoothness = None
     if settings.gap_twist_prior != "off":
-        smoothness = _twist_smoothness(poses0, cleaned.dt, gaps, settings.gap_twist_prior == "exact")
+        smoothness = _twist_smoothness(poses0, cleaned.dt, unconstrained_intervals(rows, T),
+                                       settings.gap_twist_prior == "exact")
     bias = None  # the joint bias variable ("joint")
     b_hat = None  # the bias the motion factors are corrected for ("alternate")
     motion = deltas

@@ -131,20 +131,28 @@ def linearised(factor: gtsam.NonlinearFactor, values: gtsam.Values) -> gtsam.Lin
     return gtsam.LinearContainerFactor(factor.linearize(point), point)
 
 
-def add_smoothness_factors(graph: gtsam.NonlinearFactorGraph, gaps: np.ndarray, tau: np.ndarray,
-                           sigma: np.ndarray, values: gtsam.Values | None = None) -> int:
-    """Add one smoothness factor per gap interval (with neighbours on both sides) to
-    ``graph``; returns how many.
+def gap_prior(k: int, tau: np.ndarray, sigma: np.ndarray,
+              values: gtsam.Values | None = None) -> gtsam.NonlinearFactor:
+    """The smoothness factor of gap interval ``k`` (``tau`` all interval lengths, ``sigma``
+    (6,) rotation first).
 
-    With ``values`` each factor is linearised there and added as a ``LinearContainerFactor``
+    With ``values`` it is linearised there and returned as a ``LinearContainerFactor``
     instead of the Python ``CustomFactor``: any Python factor in the graph halves the speed of
     GTSAM's Levenberg-Marquardt on the 2-core machine (0027: 12 -> 25 s), the C++ container
     costs nothing. The linearisation is exact for a change of the global frame (the
     error depends on relative poses only, and a left change ``G x_i`` is the right perturbation
-    ``Ad(x_i^-1) log G`` of every pose); the smoother relinearises it each solve round."""
+    ``Ad(x_i^-1) log G`` of every pose); the smoothers relinearise it each solve round (batch)
+    or linearise it at the latest estimates (iSAM2)."""
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, dtype=float))
+    factor = smoothness_factor(int(k), tau[k - 1:k + 2], noise)
+    return factor if values is None else linearised(factor, values)
+
+
+def add_smoothness_factors(graph: gtsam.NonlinearFactorGraph, gaps: np.ndarray, tau: np.ndarray,
+                           sigma: np.ndarray, values: gtsam.Values | None = None) -> int:
+    """Add :func:`gap_prior` for each gap interval with neighbours on both sides to ``graph``
+    (linearised at ``values`` if given); returns how many."""
     ks = prior_intervals(gaps)
     for k in ks:
-        factor = smoothness_factor(int(k), tau[k - 1:k + 2], noise)
-        graph.add(factor if values is None else linearised(factor, values))
+        graph.add(gap_prior(int(k), tau, sigma, values))
     return int(ks.size)
