@@ -9,6 +9,7 @@ from ekf.errors import InputError
 from ekf.geometry import se3_exp, se3_inv
 from ekf.sequence import Sequence
 from eval.loader import load_sequence, read_calibration, save_sequence, write_npz
+from tests.sequence_asserts import assert_same_sequence
 
 T, M = 6, 5
 
@@ -44,21 +45,6 @@ def other_edition(arrays):
     out["angular_velocity"] = out.pop("rotational_velocity")
     out["imu_T_cam"] = se3_inv(out.pop("cam_T_imu"))
     return out
-
-
-def assert_same_sequence(a: Sequence, b: Sequence, name=True):
-    if name:
-        assert a.name == b.name
-    np.testing.assert_array_equal(a.timestamps, b.timestamps)
-    np.testing.assert_array_equal(a.linear_velocity, b.linear_velocity)
-    np.testing.assert_array_equal(a.angular_velocity, b.angular_velocity)
-    np.testing.assert_array_equal(a.obs.frame_ptr, b.obs.frame_ptr)
-    np.testing.assert_array_equal(a.obs.track, b.obs.track)
-    np.testing.assert_array_equal(a.obs.z, b.obs.z)
-    assert a.n_tracks == b.n_tracks
-    np.testing.assert_array_equal(a.calibration.K, b.calibration.K)
-    assert a.calibration.baseline == b.calibration.baseline
-    np.testing.assert_allclose(a.calibration.cam_T_imu, b.calibration.cam_T_imu, atol=1e-14)
 
 
 def test_valid_file_loads_with_layout_and_names(tmp_path):
