@@ -10,6 +10,19 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
+
+# Property-based tests are deterministic (fixed seed via derandomize) and bounded, so CI gives
+# the same verdict every time and the whole hypothesis suite stays well under two minutes.
+settings.register_profile(
+    "vislam",
+    derandomize=True,
+    deadline=None,
+    max_examples=50,
+    print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+settings.load_profile("vislam")
 
 from eval.datasets import DATA_ENV, SHARED_DRIVES, data_dir as _data_dir
 from eval.datasets import drive_path as _drive_path
