@@ -2,20 +2,17 @@
 output behind.
 
 Files are written to a temporary sibling and renamed over the target (``os.replace`` is atomic
-on POSIX within one file system). Whole output folders are built in a temporary sibling folder
-and renamed into place only once everything in them has been written.
+on POSIX within one file system). Whole output folders, and the rule that vislam never replaces
+a file it did not write, are :mod:`eval.output_dir`'s.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import os
-import shutil
 import tempfile
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -73,36 +70,7 @@ def write_json(path: str | os.PathLike, obj) -> None:
     write_text(path, json_text(obj))
 
 
-@contextlib.contextmanager
-def atomic_dir(final: str | os.PathLike, *, replace: bool = True) -> Iterator[Path]:
-    """Yield a fresh temporary folder next to ``final``; on success rename it to ``final``.
-
-    On any exception (including KeyboardInterrupt) the temporary folder is removed and
-    ``final`` is left as it was. With ``replace``, an existing ``final`` is swapped out (moved
-    aside, then deleted) only after the new folder is complete.
-    """
-    final = Path(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{final.name}.", suffix=".tmp"))
-    try:
-        yield tmp
-        _usual_modes(tmp)
-        if final.exists() or final.is_symlink():
-            if not replace:
-                raise FileExistsError(f"{final} exists")
-            old = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{final.name}.", suffix=".old"))
-            os.rmdir(old)
-            os.replace(final, old)
-            os.replace(tmp, final)
-            _remove(old)
-        else:
-            os.replace(tmp, final)
-    except BaseException:
-        _remove(tmp)
-        raise
-
-
-def _usual_modes(root: Path) -> None:
+def usual_modes(root: Path) -> None:
     """mkdtemp/mkstemp create 0700/0600; give the folder and everything in it the usual modes."""
     mask = _umask()
     os.chmod(root, 0o777 & ~mask)
@@ -113,9 +81,15 @@ def _usual_modes(root: Path) -> None:
             os.chmod(os.path.join(dirpath, f), 0o666 & ~mask)
 
 
-def atomic_symlink(target: str | os.PathLike, link: str | os.PathLike) -> None:
-    """Point ``link`` at ``target`` (relative targets stay relative), replacing it atomically."""
+def atomic_symlink(target: str | os.PathLike, link: str | os.PathLike) -> bool:
+    """Point ``link`` at ``target`` (relative targets stay relative), replacing it atomically.
+
+    Only a symbolic link is ever replaced: where ``link`` is a file or folder (the user's), it
+    is left alone, a warning is logged and False returned."""
     link = Path(link)
+    if (link.exists() or link.is_symlink()) and not link.is_symlink():
+        log.warning("%s exists and is not a symbolic link; left as it is", link)
+        return False
     link.parent.mkdir(parents=True, exist_ok=True)
     tmp = link.parent / f".{link.name}.{os.getpid()}.tmp"
     tmp.unlink(missing_ok=True)
@@ -125,13 +99,4 @@ def atomic_symlink(target: str | os.PathLike, link: str | os.PathLike) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-
-
-def _remove(path: Path) -> None:
-    try:
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path)
-        else:
-            path.unlink(missing_ok=True)
-    except OSError as exc:  # pragma: no cover - best effort clean-up
-        log.warning("could not remove %s: %s", path, exc)
+    return True

@@ -25,10 +25,13 @@ with the smoother's estimate on the same sequence (null for the smoothers themse
 from __future__ import annotations
 
 import concurrent.futures as cf
+import concurrent.futures.process
+import contextlib
 import dataclasses
 import logging
+import signal
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -173,10 +176,37 @@ def _job(seq: Sequence, key: str, name: str, config: FilterConfig, initial: Esti
     except (EstimationError, ImportError) as exc:
         return JobFailure(key, name, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
     except Exception as exc:  # a crash of one estimator must not lose the whole benchmark
-        log.warning("%s on %s crashed", name, key, exc_info=True)
+        log.debug("%s on %s crashed", name, key, exc_info=True)  # the traceback with -v
         return JobFailure(key, name, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
     result.sequence = key
     return result
+
+
+def _worker_signals() -> None:
+    """In each worker: Ctrl-C (sent by the terminal to the whole process group) is the main
+    process's to handle, and SIGTERM (how the main process ends a worker) ends it at once."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
+    """Terminate the pool's workers and return without waiting for their jobs to finish."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for p in processes:
+        with contextlib.suppress(Exception):
+            p.terminate()
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in processes:
+        with contextlib.suppress(Exception):
+            p.join(timeout=1.0)
+
+
+def _outcome(fut: cf.Future) -> "JobResult | JobFailure":
+    """A finished job's result; a worker that died (killed, out of memory) is a failure."""
+    try:
+        return fut.result()
+    except cf.process.BrokenProcessPool as exc:
+        raise EstimationError(f"a worker process died ({exc}); the benchmark cannot go on") from None
 
 
 def _initialiser(estimators: list[str]) -> str | None:
@@ -229,22 +259,22 @@ def run_jobs(
                 key, name, initial = queue.pop(0)
                 queue.extend(record(_job(sequences[key], key, name, config, initial, smoother)))
             return results
-        with cf.ProcessPoolExecutor(max_workers=jobs) as pool:
+        pool = cf.ProcessPoolExecutor(max_workers=jobs, initializer=_worker_signals)
+        try:
             pending = {
                 pool.submit(_job, sequences[k], k, n, config, None, smoother)
                 for k in sequences for n in order
             }
-            try:
-                while pending:
-                    done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-                    for fut in done:
-                        for key, name, initial in record(fut.result()):
-                            pending.add(pool.submit(_job, sequences[key], key, name, config, initial,
-                                                    smoother))
-            except BaseException:
-                for fut in pending:
-                    fut.cancel()
-                raise
+            while pending:
+                done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+                for fut in done:
+                    for key, name, initial in record(_outcome(fut)):
+                        pending.add(pool.submit(_job, sequences[key], key, name, config, initial,
+                                                smoother))
+        except BaseException:
+            _stop_pool(pool)  # Ctrl-C, SIGTERM, an error: end the workers now, not after their jobs
+            raise
+        pool.shutdown(wait=True)
         return results
     finally:
         bar.close()
@@ -409,6 +439,12 @@ class BenchOutput:
     results: dict
     summary: str
     wall_s: float
+    #: One line per estimator run that failed ("SEQUENCE ESTIMATOR: error"), empty when none.
+    failures: list[str] = field(default_factory=list)
+
+
+#: What ``vislam bench`` writes at the top of its folder (a folder per sequence besides).
+BENCH_FILES = ("results.json", "summary.md", "settings.json")
 
 
 def default_out_dir(root: Path = Path("results")) -> Path:
@@ -425,16 +461,36 @@ def run_benchmark(
     settings: dict | None = None,
     latest_link: Path | None = None,
     smoother: SmootherSettings | None = None,
+    force: bool = False,
 ) -> BenchOutput:
-    """Run, score, plot and write everything into ``out_dir`` (atomically); ``smoother`` the
-    smoothers' settings (defaults when None)."""
-    from eval.atomic import atomic_dir, atomic_symlink, write_json, write_text
-    from eval.export import write_tum
+    """Run, score, plot and write everything into ``out_dir``; ``smoother`` the smoothers'
+    settings (defaults when None). The folder is checked before the first job starts and
+    written as :mod:`eval.output_dir` says (``force``: write beside files vislam did not write,
+    never over them)."""
+    from eval.atomic import atomic_symlink
+    from eval.output_dir import OutputDir
 
     t0 = time.perf_counter()
     by_key = {bs.name: bs.sequence for bs in sequences}
     smoother = smoother if smoother is not None else SmootherSettings()
-    outcomes = run_jobs(by_key, estimators, config, jobs, show_progress, smoother=smoother)
+    out = OutputDir(out_dir, force=force, inputs=[b.path for b in sequences if b.path],
+                    expected=[*BENCH_FILES, *by_key])
+    with out as tmp:
+        outcomes = run_jobs(by_key, estimators, config, jobs, show_progress, smoother=smoother)
+        results, summary = _write_results(tmp, sequences, estimators, outcomes, config, jobs,
+                                          smoother, settings, t0)
+    if latest_link is not None:
+        atomic_symlink(Path(out_dir).name, latest_link)
+    failures = [f"{s['name']} {r['name']}: {r['error']}"
+                for s in results["sequences"] for r in s["estimators"] if r["error"]]
+    return BenchOutput(Path(out_dir), results, summary, time.perf_counter() - t0, failures)
+
+
+def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smoother, settings,
+                   t0: float) -> tuple[dict, str]:
+    from eval.atomic import write_json, write_text
+    from eval.export import write_tum
+
     results = {
         "schema": SCHEMA,
         "rpe_definition": RPE_DEFINITION,
@@ -443,30 +499,27 @@ def run_benchmark(
         "estimators": list(estimators),
         "sequences": [],
     }
-    with atomic_dir(out_dir) as tmp:
-        for bs in sequences:
-            outs = {n: outcomes[(bs.name, n)] for n in estimators if (bs.name, n) in outcomes}
-            results["sequences"].append(score_sequence(bs, estimators, outs))
-            ests = {n: o.estimate for n, o in outs.items() if isinstance(o, JobResult)}
-            folder = tmp / bs.name
-            for name, est in ests.items():
-                write_tum(folder / f"{name}.tum", est.timestamps, est.poses)
-            sequence_figures(folder, bs, ests)
-        results["wall_s"] = time.perf_counter() - t0
-        summary = summary_markdown(results)
-        write_json(tmp / "results.json", results)
-        write_text(tmp / "summary.md", summary)
-        write_json(tmp / "settings.json", {
-            "estimators": list(estimators),
-            "jobs": jobs,
-            "filter": config.to_dict(),
-            "smoother": smoother.to_dict(),
-            "sequences": [{"name": b.name, "path": b.path, **(b.origin or {})} for b in sequences],
-            **(settings or {}),
-        })
-    if latest_link is not None:
-        atomic_symlink(Path(out_dir).name, latest_link)
-    return BenchOutput(Path(out_dir), results, summary, time.perf_counter() - t0)
+    for bs in sequences:
+        outs = {n: outcomes[(bs.name, n)] for n in estimators if (bs.name, n) in outcomes}
+        results["sequences"].append(score_sequence(bs, estimators, outs))
+        ests = {n: o.estimate for n, o in outs.items() if isinstance(o, JobResult)}
+        folder = tmp / bs.name
+        for name, est in ests.items():
+            write_tum(folder / f"{name}.tum", est.timestamps, est.poses)
+        sequence_figures(folder, bs, ests)
+    results["wall_s"] = time.perf_counter() - t0
+    summary = summary_markdown(results)
+    write_json(tmp / "results.json", results)
+    write_text(tmp / "summary.md", summary)
+    write_json(tmp / "settings.json", {
+        "estimators": list(estimators),
+        "jobs": jobs,
+        "filter": config.to_dict(),
+        "smoother": smoother.to_dict(),
+        "sequences": [{"name": b.name, "path": b.path, **(b.origin or {})} for b in sequences],
+        **(settings or {}),
+    })
+    return results, summary
 
 
 # --- Monte Carlo NEES ------------------------------------------------------------------------

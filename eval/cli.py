@@ -2,6 +2,11 @@
 
 Library code raises :class:`ekf.InputError` / :class:`ekf.EstimationError`; here they become
 one line on stderr and exit code 2, with no traceback and nothing written.
+
+Exit codes: 0 done; 2 bad input, an estimator that failed (``run``), or an output that could
+not be written (one line on stderr, nothing written); 3 ``bench`` or ``nees`` finished and
+wrote their results, but an estimator failed (one line per failure on stderr); 130 Ctrl-C and
+143 SIGTERM (workers ended, nothing left behind); 1 a bug (a traceback: please report it).
 """
 
 from __future__ import annotations
@@ -9,6 +14,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import signal
 import sys
 
 from ekf.errors import EstimationError, InputError
@@ -45,14 +51,46 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    previous = _terminate_raises()
     try:
         return int(args._run(args) or 0)
     except (InputError, EstimationError) as exc:
         print(f"vislam {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # the disk filled up, a folder vanished, ...: nothing was written
+        where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
+        print(f"vislam {args.command}: error:{where} {exc.strerror or exc}; nothing written",
+              file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"vislam {args.command}: error: out of memory; nothing written", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        print(f"vislam {args.command}: interrupted", file=sys.stderr)
+        print(f"vislam {args.command}: interrupted; nothing written", file=sys.stderr)
         return 130
+    except Terminated:
+        print(f"vislam {args.command}: terminated; nothing written", file=sys.stderr)
+        return 143
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that every clean-up (``finally``, the output
+    folder's staging, the worker pool) runs as it does for Ctrl-C."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+def _terminate_raises():
+    """Install the SIGTERM handler; returns the previous one (None where it cannot be set)."""
+    try:
+        return signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread (e.g. main() called from a test's thread)
+        return None
 
 
 if __name__ == "__main__":

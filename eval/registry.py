@@ -73,9 +73,14 @@ def get_estimator(name: str) -> Callable:
 
 def parse_estimator_list(text: str | None, default: tuple[str, ...]) -> list[str]:
     """Comma-separated names (``all`` for every estimator) -> validated list in registry order."""
-    if text is None or not text.strip():
+    if text is None:
         return list(default)
     names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise InputError(
+            f"--estimators {text!r} names no estimator; valid names: {', '.join(ESTIMATOR_NAMES)}"
+            " (or 'all')"
+        )
     if names == ["all"]:
         return list(ESTIMATOR_NAMES)
     unknown = [n for n in names if n not in ESTIMATOR_NAMES]

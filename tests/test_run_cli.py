@@ -9,6 +9,7 @@ import pytest
 
 from ekf.estimate import Estimate
 from eval.cli import main
+from eval.output_dir import MARKER
 from eval.registry import ESTIMATOR_NAMES, get_estimator
 
 OUTPUTS = ("trajectory.tum", "trajectory.kitti", "map.npz", "estimate.npz", "metrics.json",
@@ -40,7 +41,7 @@ def test_registry_names_and_unknown_name():
 def test_run_writes_every_file(name, sim_file, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["run", str(sim_file), "--estimator", name, "--out", str(out), "--quiet"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUTS)
+    assert sorted(p.name for p in out.iterdir()) == sorted([*OUTPUTS, MARKER])
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["estimator"] == name and metrics["frames"] == 60
     assert metrics["has_ground_truth"] and metrics["ate_m"] is not None

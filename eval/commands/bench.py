@@ -13,6 +13,9 @@ import os
 import sys
 from pathlib import Path
 
+#: Exit code when the benchmark finished and wrote its results but an estimator failed.
+EXIT_FAILURES = 3
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from eval.benchmark import DEFAULT_BENCH_FRAMES
@@ -22,6 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("paths", nargs="*", metavar="PATH", help=".npz files or folders of them")
     parser.add_argument("--out", "-o", metavar="DIR",
                         help="output folder (default results/<YYYYmmdd-HHMMSS>, linked as results/latest)")
+    parser.add_argument("--force", action="store_true",
+                        help="write into a non-empty folder vislam did not write (its files are "
+                             "never replaced)")
     parser.add_argument("--estimators", "-e", metavar="LIST",
                         help=f"comma-separated, or 'all' (default: {','.join(DEFAULT_BENCH)}; "
                              f"all: {','.join(ESTIMATOR_NAMES)})")
@@ -60,9 +66,11 @@ def run(args: argparse.Namespace) -> int:
         latest = Path("results") / "latest"
     result = run_benchmark(
         sequences, estimators, config, out, jobs=jobs, show_progress=not args.quiet,
-        settings=environment_settings(), latest_link=latest, smoother=smoother,
+        settings=environment_settings(), latest_link=latest, smoother=smoother, force=args.force,
     )
     if not args.quiet:
         print(result.summary)
     print(f"wrote {result.out_dir} in {result.wall_s:.1f} s", file=sys.stderr)
-    return 0
+    for line in result.failures:
+        print(f"vislam bench: failed: {line}", file=sys.stderr)
+    return EXIT_FAILURES if result.failures else 0

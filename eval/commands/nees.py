@@ -10,6 +10,8 @@ import sys
 from pathlib import Path
 
 NEES_DEFAULT = ("ekf-joint", "ekf-invariant", "smoother")
+#: What ``vislam nees`` writes into its folder.
+NEES_FILES = ("nees.json", "nees.png")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"length of the simulated drive (default {DEFAULT_NEES_FRAMES})")
     parser.add_argument("--out", "-o", metavar="DIR",
                         help="output folder (default results/nees-<YYYYmmdd-HHMMSS>)")
+    parser.add_argument("--force", action="store_true",
+                        help="write into a non-empty folder vislam did not write (its files are "
+                             "never replaced)")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar, no table")
     add_filter_arguments(parser)
 
@@ -35,7 +40,9 @@ def run(args: argparse.Namespace) -> int:
 
     from ekf.errors import InputError
     from eval import plots
-    from eval.atomic import atomic_dir, write_json
+    from eval.atomic import write_json
+    from eval.commands.bench import EXIT_FAILURES
+    from eval.output_dir import OutputDir
     from eval.benchmark import monte_carlo_nees
     from eval.registry import parse_estimator_list
     from eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
@@ -53,11 +60,11 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("results") / time.strftime("nees-%Y%m%d-%H%M%S")
 
     t0 = time.perf_counter()
-    result = monte_carlo_nees(args.runs, args.seed, estimators, config, frames=args.frames,
-                              jobs=min(jobs, args.runs * len(estimators)),
-                              show_progress=not args.quiet, smoother=smoother)
-    result["settings"] = environment_settings()
-    with atomic_dir(out) as tmp:
+    with OutputDir(out, force=args.force, expected=NEES_FILES) as tmp:
+        result = monte_carlo_nees(args.runs, args.seed, estimators, config, frames=args.frames,
+                                  jobs=min(jobs, args.runs * len(estimators)),
+                                  show_progress=not args.quiet, smoother=smoother)
+        result["settings"] = environment_settings()
         write_json(tmp / "nees.json", result)
         series = {n: r["nees_pose_over_time"] for n, r in result["estimators"].items()}
         plots.plot_nees(tmp / "nees.png", series, dof=6, n_runs=args.runs, times=result["timestamps"],
@@ -66,7 +73,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(_table(result))
     print(f"wrote {out} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-    return 0
+    failed = {n: r for n, r in result["estimators"].items() if r["runs_failed"]}
+    for n, r in failed.items():
+        first = r["errors"][0] if r["errors"] else "no message"
+        print(f"vislam nees: failed: {n}: {r['runs_failed']} of {args.runs} runs ({first})",
+              file=sys.stderr)
+    return EXIT_FAILURES if failed else 0
 
 
 def _table(result: dict) -> str:

@@ -1,8 +1,8 @@
 """`vislam run`: one estimator on one sequence; trajectory, map, estimate, scores into a folder.
 
-The output folder is built next to ``--out`` under a temporary name and renamed into place only
-when every file is written: an error or an interruption leaves nothing half-written (and an
-existing ``--out`` untouched).
+The output folder follows :mod:`eval.output_dir`: checked before the estimation starts, built
+in a hidden staging folder and moved in only when every file is written; an error or an
+interruption leaves nothing half-written, and no file vislam did not write is ever replaced.
 """
 
 from __future__ import annotations
@@ -14,6 +14,10 @@ import numpy as np
 
 from eval.registry import ESTIMATOR_NAMES
 
+#: What ``vislam run`` writes into ``--out`` (eval.runjob.write_run_outputs).
+RUN_FILES = ("trajectory.tum", "trajectory.kitti", "map.npz", "estimate.npz", "metrics.json",
+             "settings.json")
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", metavar="FILE.npz", help="the sequence (.npz data file)")
@@ -21,7 +25,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--estimator", "-e", required=True, metavar="NAME",
         help=f"one of: {', '.join(ESTIMATOR_NAMES)}",
     )
-    parser.add_argument("--out", "-o", required=True, metavar="DIR", help="output folder")
+    parser.add_argument("--out", "-o", required=True, metavar="DIR",
+                        help="output folder: new, empty, or written by vislam before")
+    parser.add_argument("--force", action="store_true",
+                        help="write into a non-empty folder vislam did not write (its files are "
+                             "never replaced)")
     parser.add_argument("--gt", metavar="FILE", help="ground-truth file (default: found next to FILE)")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     from eval.runjob import add_filter_arguments
@@ -30,20 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eval.atomic import atomic_dir
+    from eval.output_dir import OutputDir
     from eval.groundtruth import find_ground_truth
     from eval.loader import load_sequence
     from eval.registry import get_estimator
-    from eval.runjob import (
-        RPE_DEFINITION,
-        Progress,
-        environment_settings,
-        filter_config_from_args,
-        run_estimator,
-        smoother_settings_from_args,
-        trajectory_scores,
-        write_run_outputs,
-    )
+    from eval.runjob import filter_config_from_args, smoother_settings_from_args
 
     # Everything that can be wrong with the input is checked before anything is written.
     get_estimator(args.estimator)
@@ -51,6 +50,22 @@ def run(args: argparse.Namespace) -> int:
     smoother = smoother_settings_from_args(args)
     seq = load_sequence(args.file, clean=False)
     gt = find_ground_truth(args.file, override=args.gt)
+    out = OutputDir(args.out, force=args.force, inputs=[args.file], expected=RUN_FILES)
+    with out as tmp:
+        metrics = _estimate_and_write(args, seq, gt, config, smoother, tmp)
+    print(_summary_line(metrics, args.out))
+    return 0
+
+
+def _estimate_and_write(args, seq, gt, config, smoother, tmp: Path) -> dict:
+    from eval.runjob import (
+        RPE_DEFINITION,
+        Progress,
+        environment_settings,
+        run_estimator,
+        trajectory_scores,
+        write_run_outputs,
+    )
 
     with Progress(f"{args.estimator} {seq.name}", total=seq.n_frames, enabled=not args.quiet) as bar:
         job = run_estimator(seq, args.estimator, config, progress=bar, smoother=smoother)
@@ -62,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
         "runtime_s": job.wall_s,
         "frames_per_s": seq.n_frames / job.wall_s if job.wall_s > 0 else None,
         "landmarks": int(np.count_nonzero(est.has_landmark)),
+        "numerical_rejections": int(est.info.get("numerical_rejections", 0)),
         "has_ground_truth": gt is not None,
         **trajectory_scores(est, gt),
         "rpe_definition": RPE_DEFINITION,
@@ -74,11 +90,8 @@ def run(args: argparse.Namespace) -> int:
         **({"smoother": smoother.to_dict()} if args.estimator.startswith("smoother") else {}),
         **environment_settings(),
     }
-    with atomic_dir(args.out) as tmp:
-        write_run_outputs(tmp, seq, est, metrics, settings)
-
-    print(_summary_line(metrics, args.out))
-    return 0
+    write_run_outputs(tmp, seq, est, metrics, settings)
+    return metrics
 
 
 def _gt_path(gt, override) -> str | None:

@@ -8,7 +8,9 @@ The same seed and settings always give the same bytes.
 from __future__ import annotations
 
 import argparse
+import re
 import time
+from pathlib import Path
 
 from ekf.errors import InputError
 from eval.simulate import DEFAULT_SIM, SimConfig, simulate, simulation_stats, write_simulation
@@ -16,7 +18,12 @@ from eval.simulate import DEFAULT_SIM, SimConfig, simulate, simulation_stats, wr
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     d = DEFAULT_SIM
-    parser.add_argument("--out", required=True, help="output folder (created if missing)")
+    parser.add_argument("--out", required=True,
+                        help="output folder (created if missing; files already there are kept, "
+                             "and vislam never replaces a file it did not write)")
+    parser.add_argument("--force", action="store_true",
+                        help="write into a non-empty folder vislam did not write (its files are "
+                             "never replaced)")
     parser.add_argument("--seed", type=int, default=d.seed, help="random seed (default %(default)s)")
     parser.add_argument(
         "--frames", type=int, default=d.n_frames, help="number of frames at 10 Hz (default %(default)s)"
@@ -71,7 +78,10 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         bias = bias * 3
     if len(bias) != 3:
         raise InputError(f"--gyro-bias takes one or three values, got {len(bias)}")
-    name = args.name or f"sim-seed{args.seed}"
+    name = args.name if args.name is not None else f"sim-seed{args.seed}"
+    check_name(name)
+    if not 2 <= args.frames <= MAX_FRAMES:
+        raise InputError(f"--frames must be between 2 and {MAX_FRAMES}, got {args.frames}")
     return SimConfig(
         seed=args.seed,
         n_frames=args.frames,
@@ -86,12 +96,45 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
     )
 
 
+#: Longest drive ``vislam simulate`` writes (KITTI's longest sequence has about 4500 frames).
+MAX_FRAMES = 20000
+#: Largest dense feature array (4, M, T) of float64 it writes; the data format is dense.
+MAX_FEATURE_BYTES = 2 * 1024**3
+_NAME_OK = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")
+
+
+def check_name(name: str) -> None:
+    """``--name`` is a file name stem: no folders, no leading dot, nothing a shell would mangle."""
+    if not _NAME_OK.fullmatch(name) or len(name) > 200:
+        raise InputError(
+            f"--name {name!r}: must be a plain file name stem (letters, digits, '_', '-', '+', "
+            "'.', not starting with '.' or '-', no '/'); the files go into --out"
+        )
+
+
+def outputs(name: str) -> tuple[str, ...]:
+    """The files ``vislam simulate`` writes, relative to ``--out`` (eval.simulate.write_simulation)."""
+    return (f"{name}.npz", f"groundtruth/{name}.txt", f"{name}_landmarks.npz")
+
+
 def run(args: argparse.Namespace) -> int:
+    from eval.output_dir import OutputDir
+
     config = config_from_args(args)
-    start = time.perf_counter()
-    result = simulate(config)
-    sim_s = time.perf_counter() - start
-    paths = write_simulation(result, args.out, config.name)
+    with OutputDir(args.out, force=args.force, expected=outputs(config.name),
+                   exclusive=False) as tmp:
+        start = time.perf_counter()
+        result = simulate(config)
+        sim_s = time.perf_counter() - start
+        dense = 4 * result.sequence.n_tracks * result.sequence.n_frames * 8
+        if dense > MAX_FEATURE_BYTES:
+            raise InputError(
+                f"--frames {args.frames}: the drive's dense feature array would take "
+                f"{dense / 1024**3:.1f} GiB (limit {MAX_FEATURE_BYTES / 1024**3:.0f} GiB); "
+                "use fewer frames or a lower --landmark-density"
+            )
+        staged = write_simulation(result, tmp, config.name)
+    paths = {role: Path(args.out) / p.relative_to(tmp) for role, p in staged.items()}
     stats = simulation_stats(result)
     print(
         f"simulated {config.name}: {stats['frames']:.0f} frames, {stats['path_length_m']:.0f} m, "
