@@ -90,6 +90,18 @@ _WINDOW_M = 150.0
 _BORDER_PX = 5.0
 
 
+#: Longest simulated drive (KITTI's longest sequence has about 4500 frames).
+MAX_SIM_FRAMES = 20000
+#: Upper bounds of the settings: beyond them a drive is no longer KITTI-like, and squares of
+#: the noise levels would overflow.
+_SIM_UPPER_BOUNDS = {
+    "rate_hz": 1000.0, "speed_min": 100.0, "speed_max": 100.0, "max_yaw_rate": 10.0,
+    "max_pitch_deg": 45.0, "velocity_sigma": 100.0, "gyro_sigma": 10.0, "pixel_sigma": 1000.0,
+    "landmark_density": 1000.0, "min_depth": 1e4, "max_depth": 1e4, "mean_track_length": 1e4,
+    "knot_spacing_s": 1e4,
+}
+
+
 @dataclass(frozen=True)
 class SimConfig:
     """Every setting of the simulator; the defaults give a quick KITTI-like drive (60 s)."""
@@ -135,8 +147,16 @@ class SimConfig:
     noise_free: bool = False
 
     def __post_init__(self) -> None:
-        if self.n_frames < 2:
-            raise InputError(f"simulation: n_frames must be at least 2, got {self.n_frames}")
+        if not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2**63:
+            raise InputError(f"simulation: seed must be an integer in [0, 2^63), got {self.seed!r}")
+        if not 2 <= self.n_frames <= MAX_SIM_FRAMES:
+            raise InputError(
+                f"simulation: n_frames must be between 2 and {MAX_SIM_FRAMES}, got {self.n_frames}"
+            )
+        for key, top in _SIM_UPPER_BOUNDS.items():
+            value = getattr(self, key)
+            if np.isfinite(value) and value > top:
+                raise InputError(f"simulation: {key} must be at most {top:g}, got {value!r}")
         positive = ("rate_hz", "speed_min", "landmark_density", "mean_track_length", "max_depth")
         for key in positive:
             value = getattr(self, key)
@@ -170,8 +190,10 @@ class SimConfig:
                 f"simulation: need 0 < min_depth < max_depth, got {self.min_depth}, {self.max_depth}"
             )
         bias = np.asarray(self.gyro_bias, dtype=float)
-        if bias.shape != (3,) or not np.all(np.isfinite(bias)):
-            raise InputError(f"simulation: gyro_bias must be 3 finite numbers, got {self.gyro_bias!r}")
+        if bias.shape != (3,) or not np.all(np.isfinite(bias)) or np.any(np.abs(bias) > 10.0):
+            raise InputError(
+                f"simulation: gyro_bias must be 3 numbers within +-10 rad/s, got {self.gyro_bias!r}"
+            )
         object.__setattr__(self, "gyro_bias", tuple(float(x) for x in bias))
 
 

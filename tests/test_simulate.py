@@ -225,3 +225,25 @@ def test_written_file_loads_back_as_the_same_sequence(tmp_path):
     seq = result.sequence
     assert_same_sequence(loaded, seq, name=False)
     np.testing.assert_array_equal(loaded.calibration.cam_T_imu, seq.calibration.cam_T_imu)
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--seed", "-1"], "seed"),
+    (["--frames", "1"], "n_frames"),
+    (["--frames", "100000"], "n_frames"),
+    (["--velocity-sigma", "1e300"], "velocity_sigma"),
+    (["--gyro-sigma", "nan"], "gyro_sigma"),
+    (["--gyro-bias", "1e308"], "gyro_bias"),
+    (["--pixel-sigma", "inf"], "pixel_sigma"),
+    (["--landmark-density", "1e9"], "landmark_density"),
+    (["--repeat-event-rate", "-0.1"], "repeat_event_rate"),
+])
+def test_hostile_simulation_settings_one_line_exit_2_nothing_written(flags, message, tmp_path, capsys):
+    from eval.cli import main
+
+    out = tmp_path / "sim"
+    frames = [] if "--frames" in flags else ["--frames", "20"]
+    assert main(["simulate", "--out", str(out), *frames, *flags]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []

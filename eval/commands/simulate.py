@@ -80,8 +80,6 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         raise InputError(f"--gyro-bias takes one or three values, got {len(bias)}")
     name = args.name if args.name is not None else f"sim-seed{args.seed}"
     check_name(name)
-    if not 2 <= args.frames <= MAX_FRAMES:
-        raise InputError(f"--frames must be between 2 and {MAX_FRAMES}, got {args.frames}")
     return SimConfig(
         seed=args.seed,
         n_frames=args.frames,
@@ -96,8 +94,6 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
     )
 
 
-#: Longest drive ``vislam simulate`` writes (KITTI's longest sequence has about 4500 frames).
-MAX_FRAMES = 20000
 #: Largest dense feature array (4, M, T) of float64 it writes; the data format is dense.
 MAX_FEATURE_BYTES = 2 * 1024**3
 _NAME_OK = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")
