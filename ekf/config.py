@@ -5,13 +5,36 @@ Noise model. The velocity noise ``w_t ~ N(0, W)`` of paper eq. 4 is in twist uni
 length tau it enters the pose as ``tau^2 W`` (to first order). The stereo pixel noise is
 ``V = pixel_sigma^2 I4`` (full rank: rows 2 and 4 of M carry the same information, so a rank-3
 V would make the innovation covariance singular).
+
+Validation. Every setting (here and in graph.settings) has a :class:`Rule`; a value is checked
+wherever it comes from (the constructor, ``replace``, a TOML file, a flag):
+
+- numbers: an int is accepted where a float is expected (and stored as a float); a bool is not
+  a number; a float is not accepted where an integer is expected, even an integral one
+  (``blas_threads = 2.0`` is refused: TOML tells the two apart, so the file is explicit);
+  strings, arrays and tables are not numbers (flags, being text, are parsed first);
+- every number is finite (nan, inf, -inf and 1e400, which TOML reads as inf, are refused) and
+  inside a documented range: the sigmas lie in [1e-12, upper bound] so that their squares, the
+  covariances, are finite and positive definite (a sigma of 1e200 would square to inf, one of
+  1e-200 to 0); the upper bounds are far beyond any sensible value (FILTER_RULES);
+- probabilities lie in the open interval (0, 1); ``gate_probability`` may also be None, in a
+  file or a flag written ``"none"`` or ``"off"``;
+- integer counts lie in [1, bound] (``blas_threads`` <= 1024);
+- choices (strings) are one of the listed values, bools are bools.
+
+Errors are :class:`ekf.errors.InputError` naming the key and, for a file, the file and table
+(``s.toml [filter]: setting 'pixel_sigma' must be ..., got -1``); flags are named by
+eval.runjob (``--pixel-sigma: must be ..., got -1``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -34,10 +57,161 @@ JOINT_LINEARISATIONS = ("standard", "fej", "oc")
 #: ``triangulate_unscented``: mean and covariance to higher order, the skewed far depths).
 TRIANGULATIONS = ("linear", "unscented")
 
+#: Smallest standard deviation accepted: its square (1e-24) is still a normal positive float.
+SIGMA_MIN = 1e-12
+#: Words that switch the chi-square gate off (``gate_probability``), in a file or a flag.
+NO_GATE_WORDS = ("none", "off")
+
+
+# --- rules -------------------------------------------------------------------------------------
+
+
+def show_value(value: Any, limit: int = 60) -> str:
+    """A value as it appears in an error message: one line, at most ``limit`` characters."""
+    if isinstance(value, (bool, np.bool_)):
+        text = "true" if value else "false"
+    elif isinstance(value, Mapping):
+        text = "a table " + repr(dict(value))
+    elif isinstance(value, (list, tuple)):
+        text = "an array " + repr(list(value))
+    else:
+        text = repr(value.item() if isinstance(value, np.generic) else value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _fmt(x: float) -> str:
+    return f"{x:g}"
+
+
+@dataclass(frozen=True)
+class Rule:
+    """What one setting may hold: ``kind`` "float", "int", "bool" or "choice"; numbers lie in
+    [lo, hi] (``lo_open``: (lo, hi]; ``hi_open``: [lo, hi)); ``optional``: None is allowed."""
+
+    kind: str
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    choices: tuple = ()
+    optional: bool = False
+
+    def describe(self) -> str:
+        """What the setting must be, as the end of "must be ..."."""
+        if self.kind == "bool":
+            text = "true or false"
+        elif self.kind == "choice":
+            text = "one of " + ", ".join(repr(c) for c in self.choices)
+        else:
+            noun = "an integer" if self.kind == "int" else "a number"
+            if self.kind == "float" and self.lo >= 0 and (self.lo > 0 or self.lo_open):
+                noun = "a positive number"
+            if self.lo_open and self.hi_open:
+                if (self.lo, self.hi) == (0, 1):
+                    noun = "a probability"
+                text = f"{noun} in ({_fmt(self.lo)}, {_fmt(self.hi)})"
+            elif self.lo_open:
+                text = (f"{noun} up to {_fmt(self.hi)}" if self.lo == 0
+                        else f"{noun} > {_fmt(self.lo)} and <= {_fmt(self.hi)}")
+            else:
+                text = f"{noun} from {_fmt(self.lo)} to {_fmt(self.hi)}"
+        if self.optional:
+            text += " or " + "/".join(repr(w) for w in NO_GATE_WORDS)
+        return text
+
+    def check(self, value: Any) -> Any:
+        """``value`` normalised (ints to float where a float is expected, numpy scalars to
+        Python ones); ValueError with "must be ..., got ..." when it is not allowed."""
+        if self.optional and (value is None or (isinstance(value, str)
+                                                and value.strip().lower() in NO_GATE_WORDS)):
+            return None
+        if self.kind == "bool":
+            if isinstance(value, (bool, np.bool_)):
+                return bool(value)
+        elif self.kind == "choice":
+            if isinstance(value, str) and value in self.choices:
+                return str(value)
+        elif isinstance(value, (bool, np.bool_)):
+            pass  # a bool is not a number
+        elif self.kind == "int":
+            if isinstance(value, numbers.Integral) and self._in_range(value):
+                return int(value)
+        elif isinstance(value, numbers.Real):
+            if self._in_range(value):
+                return float(value)
+        raise ValueError(f"must be {self.describe()}, got {show_value(value)}")
+
+    def _in_range(self, value) -> bool:
+        # exact comparisons (a huge int never goes through float); nan fails every one
+        if isinstance(value, numbers.Integral):
+            value = int(value)
+        elif not math.isfinite(float(value)):
+            return False
+        else:
+            value = float(value)
+        low = value > self.lo if self.lo_open else value >= self.lo
+        high = value < self.hi if self.hi_open else value <= self.hi
+        return bool(low and high)
+
+
+def sigma(hi: float) -> Rule:
+    """A standard deviation: positive, at least SIGMA_MIN, at most ``hi``."""
+    return Rule("float", SIGMA_MIN, hi)
+
+
+#: The rule of every FilterConfig field, in field order (units and bounds in the comments).
+FILTER_RULES: dict[str, Rule] = {
+    "pixel_sigma": sigma(1e4),  # px; images are ~1242 px wide
+    "velocity_sigma": sigma(1e3),  # m/s
+    "gyro_sigma": sigma(1e3),  # rad/s
+    "initial_position_sigma": sigma(1e6),  # m
+    "initial_rotation_sigma": sigma(1e3),  # rad
+    "gate_probability": Rule("float", 0.0, 1.0, lo_open=True, hi_open=True, optional=True),
+    "clean_tracks": Rule("bool"),
+    "min_disparity": Rule("float", 0.0, 1e4),  # px
+    "max_depth": Rule("float", 0.0, 1e6, lo_open=True),  # m
+    "velocity_pairing": Rule("choice", choices=VELOCITY_PAIRINGS),
+    "keep_landmarks": Rule("bool"),
+    "gyro_bias": Rule("bool"),
+    "gyro_bias_sigma": sigma(1e3),  # rad/s
+    "gyro_bias_walk": Rule("float", 0.0, 1e3),  # rad/s/sqrt(s); 0: a constant bias
+    "joint_linearisation": Rule("choice", choices=JOINT_LINEARISATIONS),
+    "triangulation": Rule("choice", choices=TRIANGULATIONS),
+    "blas_threads": Rule("int", 1, 1024),
+}
+
+
+def check_settings(rules: Mapping[str, Rule], values: Mapping[str, Any], label: str) -> dict:
+    """Every value of ``values`` (a dataclass's fields) checked by its rule and normalised;
+    InputError "<label> 'name' must be ..., got ..." at the first one not allowed."""
+    out = {}
+    for name, value in values.items():
+        try:
+            out[name] = rules[name].check(value)
+        except ValueError as exc:
+            raise InputError(f"{label} {name!r} {exc}") from None
+    return out
+
+
+def check_mapping(rules: Mapping[str, Rule], data: Any, source: str, what: str = "settings") -> dict:
+    """A TOML table of settings checked key by key: InputError "<source>: ..." naming the key
+    when it is unknown (the valid keys listed) or its value is not allowed."""
+    if not isinstance(data, Mapping):
+        raise InputError(f"{source}: expected a table of {what}, got {show_value(data)}")
+    for key, value in data.items():
+        if key not in rules:
+            kind = "table" if isinstance(value, Mapping) else "setting"
+            raise InputError(f"{source}: unknown {kind} {key!r} (valid {what}: "
+                             f"{', '.join(rules)})")
+    return check_settings(rules, data, f"{source}: setting")
+
+
+
 
 @dataclass(frozen=True)
 class FilterConfig:
-    """Every setting of the EKF variants (and the noise model the smoother shares)."""
+    """Every setting of the EKF variants (and the noise model the smoother shares); each is
+    checked by its rule in FILTER_RULES (module docstring)."""
 
     #: Stereo pixel noise standard deviation (px), each of uL, vL, uR, vR.
     pixel_sigma: float = 1.0
@@ -82,44 +256,9 @@ class FilterConfig:
     blas_threads: int = 1
 
     def __post_init__(self) -> None:
-        positive = (
-            "pixel_sigma",
-            "velocity_sigma",
-            "gyro_sigma",
-            "initial_position_sigma",
-            "initial_rotation_sigma",
-            "max_depth",
-            "gyro_bias_sigma",
-        )
-        for name in positive:
-            value = getattr(self, name)
-            if not np.isfinite(value) or value <= 0:
-                raise InputError(f"setting {name!r} must be a positive number, got {value!r}")
-        if self.min_disparity < 0 or not np.isfinite(self.min_disparity):
-            raise InputError(f"setting 'min_disparity' must be >= 0, got {self.min_disparity!r}")
-        if self.gyro_bias_walk < 0:
-            raise InputError(f"setting 'gyro_bias_walk' must be >= 0, got {self.gyro_bias_walk!r}")
-        if self.gate_probability is not None and not 0.0 < self.gate_probability < 1.0:
-            raise InputError(
-                f"setting 'gate_probability' must be in (0, 1) or None, got {self.gate_probability!r}"
-            )
-        if self.velocity_pairing not in VELOCITY_PAIRINGS:
-            raise InputError(
-                f"setting 'velocity_pairing' must be one of {VELOCITY_PAIRINGS}, "
-                f"got {self.velocity_pairing!r}"
-            )
-        if self.joint_linearisation not in JOINT_LINEARISATIONS:
-            raise InputError(
-                f"setting 'joint_linearisation' must be one of {JOINT_LINEARISATIONS}, "
-                f"got {self.joint_linearisation!r}"
-            )
-        if self.triangulation not in TRIANGULATIONS:
-            raise InputError(
-                f"setting 'triangulation' must be one of {TRIANGULATIONS}, "
-                f"got {self.triangulation!r}"
-            )
-        if int(self.blas_threads) < 1:
-            raise InputError(f"setting 'blas_threads' must be >= 1, got {self.blas_threads!r}")
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        for name, value in check_settings(FILTER_RULES, values, "setting").items():
+            object.__setattr__(self, name, value)
 
     # --- derived matrices -------------------------------------------------------------
     @property
@@ -146,39 +285,107 @@ class FilterConfig:
         return dataclasses.replace(self, **changes)
 
     @classmethod
-    def from_toml(cls, path: str | Path, section: str | None = "filter") -> "FilterConfig":
-        """Read settings from a TOML file (table ``[filter]`` if present, else the top level;
-        the tables of other parts, e.g. ``[smoother]``, are left to their readers)."""
-        path = Path(path)
-        data = read_toml(path)
-        if section and isinstance(data.get(section), dict):
-            data = data[section]
-        else:
-            data = {k: v for k, v in data.items() if k not in OTHER_TABLES}
-        known = {f.name: f for f in fields(cls)}
-        for key in data:
-            if key not in known:
-                raise InputError(f"{path}: unknown setting {key!r}")
-        try:
-            return cls(**data)
-        except TypeError as exc:
-            raise InputError(f"{path}: {exc}") from None
+    def from_toml(cls, path: str | Path) -> "FilterConfig":
+        """Settings from a TOML file: its ``[filter]`` table if it has one, else its top level
+        (the ``[smoother]`` table is graph.settings'). Any problem with the file, its layout
+        or a value is an InputError naming the file, the table and the key."""
+        table, source = settings_tables(path)["filter"]
+        return cls.from_mapping(table, source)
+
+    @classmethod
+    def from_mapping(cls, data: Mapping, source: str) -> "FilterConfig":
+        """Settings from a mapping (a TOML table); ``source`` names it in errors."""
+        return cls(**check_mapping(FILTER_RULES, data, source, "filter settings"))
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
 
-#: Tables of a settings file that belong to other parts of the toolkit (graph.settings).
+assert list(FILTER_RULES) == [f.name for f in fields(FilterConfig)]
+
+
+# --- settings files ----------------------------------------------------------------------------
+
+#: The tables of a settings file: ``[filter]`` (FilterConfig) and ``[smoother]``
+#: (graph.settings.SmootherSettings).
+SETTINGS_TABLES = ("filter", "smoother")
+#: Kept for callers of the old name: tables of a settings file that are not FilterConfig's.
 OTHER_TABLES = ("smoother",)
+#: A settings file larger than this is refused before it is parsed (it is not one).
+MAX_SETTINGS_BYTES = 1 << 20
+
+
+def show_path(path: str | Path) -> str:
+    """A path as it appears in an error message (escaped if it holds control characters)."""
+    text = str(path)
+    return text if text and text.isprintable() else repr(text)
 
 
 def read_toml(path: str | Path) -> dict:
-    """The contents of a TOML settings file; a missing or invalid file is an InputError."""
-    path = Path(path)
+    """The contents of a TOML settings file; InputError naming the file when it cannot be read
+    (missing, a folder, permission denied, too large), is not UTF-8 or is not valid TOML
+    (duplicate keys included)."""
+    shown = show_path(path)
     try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
+        with Path(path).open("rb") as fh:
+            raw = fh.read(MAX_SETTINGS_BYTES + 1)
     except FileNotFoundError:
-        raise InputError(f"{path}: settings file not found") from None
+        raise InputError(f"{shown}: settings file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{shown}: is a folder, not a settings file") from None
+    except PermissionError:
+        raise InputError(f"{shown}: permission denied reading the settings file") from None
+    except OSError as exc:
+        raise InputError(f"{shown}: cannot read the settings file: "
+                         f"{exc.strerror or type(exc).__name__}") from None
+    except ValueError as exc:  # e.g. an embedded NUL byte
+        raise InputError(f"{shown}: not a usable file name: {exc}") from None
+    if len(raw) > MAX_SETTINGS_BYTES:
+        raise InputError(f"{shown}: larger than {MAX_SETTINGS_BYTES // 1024} KiB, "
+                         "not a settings file")
+    try:
+        text = raw.decode("utf-8-sig")  # a leading byte-order mark (Notepad) is allowed
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise InputError(f"{shown}: not UTF-8 text (byte {exc.start}, line {line}); "
+                         "a settings file is TOML, which is UTF-8") from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML: {exc}") from None
+        raise InputError(f"{shown}: not valid TOML: {' '.join(str(exc).split())}") from None
+    except RecursionError:
+        raise InputError(f"{shown}: not valid TOML: nested too deeply") from None
+
+
+def settings_tables(path: str | Path) -> dict[str, tuple[dict, str]]:
+    """The tables of settings file ``path``: {"filter": (table, source), "smoother": (table,
+    source)}, ``source`` naming the file and table for error messages. Filter settings are in a
+    ``[filter]`` table or, without one, at the top level; anything else at the top level (an
+    unknown table, or keys beside a ``[filter]`` table) is an InputError listing what is valid.
+    """
+    data = read_toml(path)
+    shown = show_path(path)
+    for name in SETTINGS_TABLES:
+        if name in data and not isinstance(data[name], dict):
+            raise InputError(f"{shown}: [{name}] must be a table of settings, "
+                             f"got {show_value(data[name])}")
+    tables = "[" + "], [".join(SETTINGS_TABLES) + "]"
+    if "filter" in data:
+        extra = [k for k in data if k not in SETTINGS_TABLES]
+        if extra:
+            kind = "table" if isinstance(data[extra[0]], dict) else "key"
+            raise InputError(f"{shown}: unknown top-level {kind} {extra[0]!r} (with a [filter] "
+                             f"table, the file may hold only the tables {tables})")
+        filter_table, filter_source = data["filter"], f"{shown} [filter]"
+    else:
+        filter_table = {k: v for k, v in data.items() if k not in SETTINGS_TABLES}
+        filter_source = shown
+        for key, value in filter_table.items():
+            if isinstance(value, dict) and key not in FILTER_RULES:
+                name = key if key.replace("_", "a").replace("-", "a").isalnum() and key.isascii() \
+                    else repr(key)
+                raise InputError(f"{shown}: unknown table [{name}] (valid tables: {tables})")
+    return {
+        "filter": (filter_table, filter_source),
+        "smoother": (data.get("smoother", {}), f"{shown} [smoother]"),
+    }

@@ -73,7 +73,7 @@ def get_estimator(name: str) -> Callable:
 
 def parse_estimator_list(text: str | None, default: tuple[str, ...]) -> list[str]:
     """Comma-separated names (``all`` for every estimator) -> validated list in registry order."""
-    if text is None:
+    if text is None or not text.strip():  # absent or empty: the default list
         return list(default)
     names = [n.strip() for n in text.split(",") if n.strip()]
     if not names:

@@ -17,13 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ekf.config import VELOCITY_PAIRINGS, FilterConfig, read_toml
+from ekf.config import FILTER_RULES, VELOCITY_PAIRINGS, FilterConfig
+from ekf.errors import InputError
 from ekf.estimate import Estimate
-from graph.settings import GAP_PRIOR_MODES, INITIALISERS, SmootherSettings
+from graph.settings import GAP_PRIOR_MODES, INITIALISERS, SMOOTHER_RULES, SmootherSettings
 
 log = logging.getLogger(__name__)
 
-#: Command-line flag -> FilterConfig field (flags override the TOML file).
+#: Command-line flag (argparse dest) -> FilterConfig field (flags override the TOML file).
 _FLAG_FIELDS = {
     "pixel_sigma": "pixel_sigma",
     "velocity_sigma": "velocity_sigma",
@@ -33,35 +34,52 @@ _FLAG_FIELDS = {
     "max_depth": "max_depth",
     "min_disparity": "min_disparity",
 }
+#: Smoother flag (argparse dest) -> SmootherSettings field.
+_SMOOTHER_FLAG_FIELDS = {"smoother_init": "init", "gap_prior": "gap_twist_prior"}
 
 
 # --- settings --------------------------------------------------------------------------------
+#
+# The value flags are read as text (argparse only stores them) and checked after the settings
+# file is merged, by the same rules as the file (ekf.config.FILTER_RULES,
+# graph.settings.SMOOTHER_RULES), so that a bad value is one line naming the flag
+# ("--pixel-sigma: must be a positive number from 1e-12 to 10000, got -1") and exit code 2,
+# like every other input error, rather than argparse's usage message.
 
 
-_NO_GATE = "none"
+def _flag_name(dest: str) -> str:
+    return "--" + dest.replace("_", "-")
 
 
-def _gate(text: str) -> float | str:
-    if text.lower() in ("none", "off"):
-        return _NO_GATE
+def _flag_value(dest: str, rule, raw):
+    """Flag ``dest``'s value ``raw`` (text from the command line, or a value set in code)
+    parsed and checked by ``rule``; InputError "--flag: must be ..., got ..." otherwise."""
+    value = raw
+    if isinstance(raw, str) and rule.kind in ("float", "int"):
+        if not (rule.optional and raw.strip().lower() in ("none", "off")):
+            try:
+                value = int(raw) if rule.kind == "int" else float(raw)
+            except ValueError:
+                raise InputError(f"{_flag_name(dest)}: must be {rule.describe()}, "
+                                 f"got {raw!r}") from None
     try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a probability or 'none', got {text!r}")
+        return rule.check(value)
+    except ValueError as exc:
+        raise InputError(f"{_flag_name(dest)}: {exc}") from None
 
 
 def add_filter_arguments(parser: argparse.ArgumentParser) -> None:
     """The FilterConfig flags every estimating command shares."""
     g = parser.add_argument_group("estimator settings (override --config)")
-    g.add_argument("--config", metavar="TOML", help="settings file ([filter] table or top level)")
-    g.add_argument("--pixel-sigma", type=float, metavar="PX", help="stereo pixel noise sigma")
-    g.add_argument("--velocity-sigma", type=float, metavar="M/S", help="linear velocity sigma")
-    g.add_argument("--gyro-sigma", type=float, metavar="RAD/S", help="angular velocity sigma")
-    g.add_argument(
-        "--gate-probability", type=_gate, metavar="P", help="chi-square gate probability or 'none'"
-    )
+    g.add_argument("--config", metavar="TOML",
+                   help="settings file ([filter] table or top level, [smoother] table)")
+    g.add_argument("--pixel-sigma", metavar="PX", help="stereo pixel noise sigma")
+    g.add_argument("--velocity-sigma", metavar="M/S", help="linear velocity sigma")
+    g.add_argument("--gyro-sigma", metavar="RAD/S", help="angular velocity sigma")
+    g.add_argument("--gate-probability", metavar="P", help="chi-square gate probability or 'none'")
     g.add_argument("--no-clean", action="store_true", help="do not split tracks at repeats")
-    g.add_argument("--velocity-pairing", choices=VELOCITY_PAIRINGS, help="velocity for [k, k+1]")
+    g.add_argument("--velocity-pairing", metavar="{" + ",".join(VELOCITY_PAIRINGS) + "}",
+                   help="velocity for [k, k+1]")
     g.add_argument("--keep-landmarks", action="store_true", help="never marginalise landmarks")
     g.add_argument(
         "--gyro-bias",
@@ -69,25 +87,25 @@ def add_filter_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="estimate a constant gyro bias (ekf-joint, ekf-invariant; default on)",
     )
-    g.add_argument("--max-depth", type=float, metavar="M", help="reject points beyond this depth")
-    g.add_argument("--min-disparity", type=float, metavar="PX", help="reject smaller disparities")
+    g.add_argument("--max-depth", metavar="M", help="reject points beyond this depth")
+    g.add_argument("--min-disparity", metavar="PX", help="reject smaller disparities")
     s = parser.add_argument_group("smoother settings (override the [smoother] table of --config)")
-    s.add_argument("--smoother-init", choices=INITIALISERS,
+    s.add_argument("--smoother-init", metavar="{" + ",".join(INITIALISERS) + "}",
                    help="the batch smoother's initial trajectory (default ekf)")
-    s.add_argument("--gap-prior", choices=GAP_PRIOR_MODES,
+    s.add_argument("--gap-prior", metavar="{" + ",".join(GAP_PRIOR_MODES) + "}",
                    help="twist-smoothness prior on intervals without vision (default linearised)")
 
 
 def filter_config_from_args(args: argparse.Namespace) -> FilterConfig:
-    """FilterConfig from ``--config`` (if given) overridden by the individual flags."""
-    config = FilterConfig.from_toml(args.config) if getattr(args, "config", None) else FilterConfig()
+    """FilterConfig from ``--config`` (if given) overridden by the individual flags; every
+    value checked, an InputError naming the file and key or the flag otherwise."""
+    path = getattr(args, "config", None)
+    config = FilterConfig.from_toml(path) if path is not None else FilterConfig()
     changes = {}
-    for attr, name in _FLAG_FIELDS.items():
-        value = getattr(args, attr, None)
-        if value is not None:
-            changes[name] = value
-    if changes.get("gate_probability") == _NO_GATE:
-        changes["gate_probability"] = None
+    for dest, name in _FLAG_FIELDS.items():
+        raw = getattr(args, dest, None)
+        if raw is not None:
+            changes[name] = _flag_value(dest, FILTER_RULES[name], raw)
     if getattr(args, "no_clean", False):
         changes["clean_tracks"] = False
     if getattr(args, "keep_landmarks", False):
@@ -99,18 +117,14 @@ def filter_config_from_args(args: argparse.Namespace) -> FilterConfig:
 
 def smoother_settings_from_args(args: argparse.Namespace) -> SmootherSettings:
     """SmootherSettings from the ``[smoother]`` table of ``--config`` (if any) overridden by
-    ``--smoother-init`` and ``--gap-prior``."""
-    settings = SmootherSettings()
+    ``--smoother-init`` and ``--gap-prior``; checked like filter_config_from_args."""
     path = getattr(args, "config", None)
-    if path:
-        table = read_toml(path).get("smoother")
-        if table is not None:
-            settings = SmootherSettings.from_mapping(table, f"{path} [smoother]")
+    settings = SmootherSettings.from_toml(path) if path is not None else SmootherSettings()
     changes = {}
-    if getattr(args, "smoother_init", None):
-        changes["init"] = args.smoother_init
-    if getattr(args, "gap_prior", None):
-        changes["gap_twist_prior"] = args.gap_prior
+    for dest, name in _SMOOTHER_FLAG_FIELDS.items():
+        raw = getattr(args, dest, None)
+        if raw is not None:
+            changes[name] = _flag_value(dest, SMOOTHER_RULES[name], raw)
     return settings.replace(**changes) if changes else settings
 
 

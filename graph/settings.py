@@ -3,15 +3,20 @@
 The noise model itself (pixel, velocity and gyro sigmas, velocity pairing, track cleaning,
 minimum disparity) comes from :class:`ekf.config.FilterConfig`, so the EKF and the smoother are
 always compared under the same assumptions.
+
+Every field is checked by its rule in SMOOTHER_RULES (types, finiteness, ranges and choices as
+described in ekf.config) wherever it comes from: the constructor, ``replace``, the ``[smoother]``
+table of a settings file, ``--smoother-init`` / ``--gap-prior``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping
 
-import numpy as np
-
+from ekf.config import Rule, check_mapping, check_settings, settings_tables
 from ekf.errors import InputError
 
 #: Where the batch smoother's initial trajectory comes from.
@@ -69,26 +74,9 @@ class SmootherSettings:
     isam2_relinearize_skip: int = 10
 
     def __post_init__(self) -> None:
-        positive = ("huber_k", "outlier_threshold_px", "landmark_prior_sigma", "min_depth",
-                    "relative_error_tol", "isam2_relinearize_threshold")
-        for name in positive:
-            value = getattr(self, name)
-            if not np.isfinite(value) or value <= 0:
-                raise InputError(f"smoother setting {name!r} must be a positive number, got {value!r}")
-        for name in ("max_iterations", "isam2_relinearize_skip"):
-            if int(getattr(self, name)) < 1:
-                raise InputError(f"smoother setting {name!r} must be >= 1, got {getattr(self, name)!r}")
-        if self.init not in INITIALISERS:
-            raise InputError(f"smoother setting 'init' must be one of {INITIALISERS}, got {self.init!r}")
-        if self.gyro_bias not in GYRO_BIAS_MODES:
-            raise InputError(f"smoother setting 'gyro_bias' must be one of {GYRO_BIAS_MODES}, got {self.gyro_bias!r}")
-        if self.gap_twist_prior not in GAP_PRIOR_MODES:
-            raise InputError(f"smoother setting 'gap_twist_prior' must be one of {GAP_PRIOR_MODES}, "
-                             f"got {self.gap_twist_prior!r}")
-        if int(self.rejection_rounds) < 0:
-            raise InputError(f"smoother setting 'rejection_rounds' must be >= 0, got {self.rejection_rounds!r}")
-        if self.absolute_error_tol < 0:
-            raise InputError(f"smoother setting 'absolute_error_tol' must be >= 0, got {self.absolute_error_tol!r}")
+        values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        for name, value in check_settings(SMOOTHER_RULES, values, "smoother setting").items():
+            object.__setattr__(self, name, value)
 
     def replace(self, **changes) -> "SmootherSettings":
         known = {f.name for f in dataclasses.fields(self)}
@@ -101,22 +89,34 @@ class SmootherSettings:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_mapping(cls, data: dict, source: str) -> "SmootherSettings":
+    def from_mapping(cls, data: Mapping, source: str) -> "SmootherSettings":
         """Settings from a mapping (a TOML table); ``source`` names it in errors."""
-        if not isinstance(data, dict):
-            raise InputError(f"{source}: expected a table of smoother settings, got {type(data).__name__}")
-        known = {f.name: f for f in dataclasses.fields(cls)}
-        for key, value in data.items():
-            if key not in known:
-                raise InputError(f"{source}: unknown smoother setting {key!r} "
-                                 f"(known: {', '.join(sorted(known))})")
-            default = getattr(cls(), key)
-            if isinstance(default, bool) != isinstance(value, bool) or (
-                    not isinstance(default, bool) and not isinstance(value, type(default))
-                    and not (isinstance(default, float) and isinstance(value, int))):
-                raise InputError(f"{source}: smoother setting {key!r} must be a "
-                                 f"{type(default).__name__}, got {value!r}")
-        try:
-            return cls(**data)
-        except InputError as exc:
-            raise InputError(f"{source}: {exc}") from None
+        return cls(**check_mapping(SMOOTHER_RULES, data, source, "smoother settings"))
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> "SmootherSettings":
+        """Settings from the ``[smoother]`` table of a TOML settings file (defaults without
+        one); every problem is an InputError naming the file, the table and the key."""
+        table, source = settings_tables(path)["smoother"]
+        return cls.from_mapping(table, source)
+
+
+#: The rule of every SmootherSettings field, in field order (units and bounds in the comments).
+SMOOTHER_RULES: dict[str, Rule] = {
+    "init": Rule("choice", choices=INITIALISERS),
+    "huber_k": Rule("float", 1e-6, 1e6),  # whitened units
+    "max_iterations": Rule("int", 1, 1_000_000),
+    "relative_error_tol": Rule("float", 0.0, 1.0, lo_open=True),
+    "absolute_error_tol": Rule("float", 0.0, 1e12),  # in units of the whitened squared error
+    "outlier_threshold_px": Rule("float", 1e-6, 1e6),  # px
+    "rejection_rounds": Rule("int", 0, 1000),
+    "landmark_prior_sigma": Rule("float", 1e-6, 1e6),  # m; squared into a noise model
+    "min_depth": Rule("float", 0.0, 1e6, lo_open=True),  # m
+    "gyro_bias": Rule("choice", choices=GYRO_BIAS_MODES),
+    "gap_twist_prior": Rule("choice", choices=GAP_PRIOR_MODES),
+    "compute_marginals": Rule("bool"),
+    "isam2_relinearize_threshold": Rule("float", 0.0, 1e6, lo_open=True),
+    "isam2_relinearize_skip": Rule("int", 1, 1_000_000),
+}
+
+assert list(SMOOTHER_RULES) == [f.name for f in dataclasses.fields(SmootherSettings)]
