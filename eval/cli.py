@@ -29,13 +29,22 @@ COMMANDS = {
 }
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse's usage errors as one line (the usage is one ``--help`` away), exit code 2."""
+
+    def error(self, message: str):
+        message = " ".join(message.split())
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="vislam",
         description="Visual-inertial SLAM: EKF variants cross-validated against a GTSAM smoother.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=OneLineParser)
     for name, (module, help_text) in COMMANDS.items():
         mod = importlib.import_module(f"eval.commands.{module}")
         p = sub.add_parser(name, help=help_text, description=help_text)

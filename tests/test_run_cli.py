@@ -148,3 +148,17 @@ def test_bad_smoother_settings_exit_2_naming_file_and_key(table, fault, sim_file
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "bad.toml" in err and fault in err, err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "x.npz", "-e", "ekf-joint", "--out", "o", "--pixel-sigma", "-inf"],
+    ["bogus"],
+    [],
+    ["bench", "--jobs", "many"],
+])
+def test_usage_errors_are_one_line_exit_2(argv, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "--help" in err
