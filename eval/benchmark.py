@@ -137,16 +137,16 @@ def expand_paths(paths: list[str]) -> list[Path]:
 def load_bench_sequence(path: Path) -> BenchSequence:
     """A data file, its ground truth (if found) and, for simulated files, the true landmarks."""
     from eval.groundtruth import find_ground_truth
-    from eval.loader import load_sequence
+    from eval.loader import load_sequence, read_npz
 
     seq = load_sequence(path, clean=False)
     gt = find_ground_truth(path)
     truth = None
     lm_file = path.with_name(f"{path.stem}_landmarks.npz")
-    if lm_file.is_file():
-        with np.load(lm_file) as d:
-            if "landmarks" in d and d["landmarks"].shape == (seq.n_tracks, 3):
-                truth = np.asarray(d["landmarks"], dtype=float)
+    if lm_file.is_file():  # a simulated drive's true landmarks, read as carefully as the drive
+        d = read_npz(lm_file, ("landmarks",))
+        if "landmarks" in d and d["landmarks"].shape == (seq.n_tracks, 3):
+            truth = np.asarray(d["landmarks"], dtype=float)
     return BenchSequence(path.stem, str(path.resolve()), seq, gt, truth)
 
 

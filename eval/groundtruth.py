@@ -11,7 +11,10 @@ The IMU poses, in the frame of the IMU at frame 0 (the world frame of every esti
     T_imu(k) = inv(cam_T_imu) @ P(k) @ cam_T_imu.
 
 For ``DIR/NAME.npz`` the ground truth is looked up at ``DIR/groundtruth/NAME.txt`` unless a
-file is given explicitly (``--gt FILE``).
+file is given explicitly (``--gt FILE``). Only a path with nothing there means "no ground
+truth": a folder, a FIFO or device, a broken link, an unreadable file, a file that is not
+UTF-8 text or is larger than :data:`MAX_GROUND_TRUTH_BYTES` at that path is an
+:class:`~ekf.errors.InputError`, as for a file given explicitly.
 """
 
 from __future__ import annotations
@@ -29,6 +32,11 @@ from ekf.sequence import Calibration
 
 #: Rigidity tolerance for the rotation part of a pose line (files carry ~7 digits).
 RIGID_TOL = 1e-4
+#: Largest pose file read (about a million poses; 0027's is 0.2 MB).
+MAX_GROUND_TRUTH_BYTES = 256 * 2**20
+#: Largest translation accepted in a pose line, m (far beyond any drive; larger values are
+#: not metres, and overflow the conversion to IMU poses).
+MAX_TRANSLATION = 1e7
 
 
 @dataclass(frozen=True)
@@ -53,13 +61,29 @@ class GroundTruth:
 def read_kitti_poses(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     """Camera poses ``P`` (n, 4, 4) and the time column (n,) or None, from a 12- or
     13-column KITTI pose file. Faults raise :class:`InputError` naming file and line."""
+    from eval.loader import check_regular_file, open_for_reading
+
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: ground-truth file does not exist")
+    what = "ground-truth file"
+    check_regular_file(path, what)
+    too_large = (f"{path}: {what} is larger than {MAX_GROUND_TRUTH_BYTES} bytes (about a "
+                 "million poses); not a KITTI pose file?")
+    with open_for_reading(path, what) as fh:
+        try:
+            size = os.fstat(fh.fileno()).st_size
+            if size > MAX_GROUND_TRUTH_BYTES:
+                raise InputError(too_large)
+            data = fh.read(size + 1)  # read(n) allocates n bytes: never the limit itself
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    if len(data) > MAX_GROUND_TRUTH_BYTES:
+        raise InputError(too_large)
     try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: unreadable ground-truth file ({exc})") from None
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise InputError(f"{path}: line {line}: {what} is not UTF-8 text (byte "
+                         f"0x{data[exc.start]:02x} at offset {exc.start})") from None
     rows: list[list[float]] = []
     line_numbers: list[int] = []
     width = None
@@ -84,6 +108,10 @@ def read_kitti_poses(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | 
             raise InputError(f"{path}: line {number}: non-numeric value {bad!r}") from None
         if not np.all(np.isfinite(values)):
             raise InputError(f"{path}: line {number}: NaN or infinite value")
+        t = np.abs(values[-12:][3::4])
+        if np.any(t > MAX_TRANSLATION):
+            raise InputError(f"{path}: line {number}: translation {float(t.max()):.6g} m is "
+                             f"beyond {MAX_TRANSLATION:g} m (not metres?)")
         rows.append(values)
         line_numbers.append(number)
     if not rows:
@@ -94,7 +122,9 @@ def read_kitti_poses(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | 
     P = np.tile(np.eye(4), (n, 1, 1))
     P[:, :3, :] = data[:, -12:].reshape(n, 3, 4)
     for i in range(n):
-        if not is_rigid(P[i], tol=RIGID_TOL):
+        with np.errstate(over="ignore", invalid="ignore"):  # 1e308 entries: not rigid
+            rigid = is_rigid(P[i], tol=RIGID_TOL)
+        if not rigid:
             raise InputError(
                 f"{path}: line {line_numbers[i]}: the pose's rotation is not orthonormal "
                 "with determinant +1"
@@ -147,9 +177,15 @@ def load_ground_truth(
             f"{path}: line {n_frames + 1}: {P.shape[0]} pose lines for a drive of "
             f"{n_frames} frames"
         )
-    poses = camera_to_imu_poses(orthonormalise(P), calibration.cam_T_imu)
-    # World = IMU at frame 0 (a no-op for KITTI files, whose first pose is the identity).
-    poses = np.linalg.inv(poses[0]) @ poses
+    with np.errstate(over="ignore", invalid="ignore"):
+        poses = camera_to_imu_poses(orthonormalise(P), calibration.cam_T_imu)
+        # World = IMU at frame 0 (a no-op for KITTI files, whose first pose is the identity).
+        poses = np.linalg.inv(poses[0]) @ poses
+    bad = ~np.all(np.isfinite(poses), axis=(1, 2))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(f"{path}: pose {k} (frame {k}): its translation is too large to "
+                         "convert to an IMU pose (overflow)")
     return GroundTruth(
         frames=np.arange(P.shape[0], dtype=np.int64), poses=poses, source=str(path), times=times
     )
@@ -168,13 +204,22 @@ def find_ground_truth(
     n_frames: int | None = None,
 ) -> GroundTruth | None:
     """The ground truth of a drive: ``override`` if given (it must exist), else
-    ``DIR/groundtruth/NAME.txt`` if present, else None.
+    ``DIR/groundtruth/NAME.txt`` if anything is there (it must be a readable pose file: a
+    folder or an unreadable file there is an error, not "no ground truth"), else None.
 
     Calibration and frame count are read from the .npz unless given.
     """
     path = Path(override) if override is not None else ground_truth_path(npz_path)
-    if override is None and not path.is_file():
-        return None
+    if override is None:
+        try:
+            os.lstat(path)
+        except (FileNotFoundError, NotADirectoryError):
+            return None
+        except PermissionError:
+            raise InputError(f"{path}: permission denied (cannot look up the ground-truth "
+                             "file)") from None
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{path}: cannot access the ground-truth file ({exc})") from None
     if calibration is None or n_frames is None:
         from eval.loader import read_calibration
 

@@ -185,3 +185,15 @@ def test_bench_on_a_folder_of_files_finds_ground_truth_and_landmarks(tmp_path):
         assert joint["ate_m"] is not None and joint["map_rmse_m"] is not None
         assert all(v is None for v in joint["vs_smoother"].values())  # no smoother ran
         assert (out / s["name"] / "ekf-joint.tum").is_file()
+
+
+def test_bench_hostile_landmark_file_is_one_line_exit_2(tmp_path, capsys):
+    from eval.simulate import SimConfig, simulate, write_simulation
+
+    data = tmp_path / "data"
+    write_simulation(simulate(SimConfig(seed=1, n_frames=20, name="s1")), data)
+    (data / "s1_landmarks.npz").write_bytes(b"PK\x03\x04 not really a zip")
+    code = main(["bench", str(data), "-e", "dead-reckoning", "--out", str(tmp_path / "o"), "-q"])
+    err = capsys.readouterr().err
+    assert code == 2 and "s1_landmarks.npz" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()

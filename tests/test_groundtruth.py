@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -129,3 +131,93 @@ def test_0027_ground_truth(drive_path):
     assert np.median(step[:, 0, 3]) > 0.3
     assert np.max(np.abs(gt.poses[:, 2, 3])) < 10
     assert find_ground_truth(drive_path("0034")) is None
+
+
+# --------------------------------------------------------------------------- issue 11, item 6:
+# whatever is at DIR/groundtruth/NAME.txt is either read or an InputError, never ignored.
+
+
+def _drive_with_gt_slot(tmp_path):
+    from eval.loader import write_npz
+
+    T = 8
+    write_npz(tmp_path / "drive.npz", time_stamps=np.arange(T) * 0.1,
+              features=-np.ones((4, 2, T)), linear_velocity=np.zeros((3, T)),
+              angular_velocity=np.zeros((3, T)), K=CAL.K, b=CAL.baseline,
+              cam_T_imu=CAL.cam_T_imu)
+    gt = ground_truth_path(tmp_path / "drive.npz")
+    gt.parent.mkdir()
+    return tmp_path / "drive.npz", gt
+
+
+def _assert_gt_error(npz, gt, *fragments, override=None):
+    with pytest.raises(InputError) as info:
+        find_ground_truth(npz, override=override)
+    text = str(info.value)
+    assert "\n" not in text and str(gt) in text, text
+    for fragment in fragments:
+        assert fragment in text, text
+
+
+def test_folder_at_the_ground_truth_path_is_an_error(tmp_path):
+    # Reproduces item 6: silently ignored (find_ground_truth returned None).
+    npz, gt = _drive_with_gt_slot(tmp_path)
+    gt.mkdir()
+    _assert_gt_error(npz, gt, "is a directory")
+    _assert_gt_error(npz, gt, "is a directory", override=gt)
+
+
+def test_non_utf8_and_binary_ground_truth(tmp_path):
+    npz, gt = _drive_with_gt_slot(tmp_path)
+    gt.write_bytes((_pose_line() + "\n").encode() + b"1 0 0 \xff\xfe 0\n")
+    _assert_gt_error(npz, gt, "line 2", "not UTF-8", "0xff")
+    gt.write_bytes(b"\x00" * 100)
+    _assert_gt_error(npz, gt, "line 1")
+    # A byte-order mark is not an error.
+    gt.write_bytes(("\ufeff" + _pose_line() + "\n").encode())
+    assert find_ground_truth(npz).n == 1
+
+
+def test_unreadable_ground_truth_says_permission_denied(tmp_path, monkeypatch):
+    npz, gt = _drive_with_gt_slot(tmp_path)
+    gt.write_text(_pose_line() + "\n")
+    import builtins
+    import errno
+    import io
+
+    real_open = builtins.open
+
+    def denying_open(file, *args, **kwargs):
+        if os.fspath(file) == str(gt):
+            raise PermissionError(errno.EACCES, "Permission denied", str(gt))
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", denying_open)
+    monkeypatch.setattr(io, "open", denying_open)
+    _assert_gt_error(npz, gt, "permission denied")
+
+
+def test_fifo_and_broken_link_at_the_ground_truth_path(tmp_path):
+    npz, gt = _drive_with_gt_slot(tmp_path)
+    os.mkfifo(gt)
+    _assert_gt_error(npz, gt, "not a regular file")  # refused without opening it (no hang)
+    gt.unlink()
+    gt.symlink_to(tmp_path / "nowhere.txt")
+    _assert_gt_error(npz, gt, "broken symbolic link")
+
+
+def test_huge_translation_is_an_error_not_inf(tmp_path):
+    path = tmp_path / "gt.txt"
+    path.write_text(_pose_line() + "\n" + _pose_line().replace("0.2", "-1.7e308") + "\n")
+    with pytest.raises(InputError, match=r"line 2: translation 1.7e\+308 m is beyond"):
+        load_ground_truth(path, CAL, n_frames=10)
+
+
+def test_oversized_ground_truth_is_refused(tmp_path, monkeypatch):
+    import eval.groundtruth as groundtruth
+
+    path = tmp_path / "gt.txt"
+    path.write_text((_pose_line() + "\n") * 10)
+    monkeypatch.setattr(groundtruth, "MAX_GROUND_TRUTH_BYTES", 100)
+    with pytest.raises(InputError, match="larger than 100 bytes"):
+        load_ground_truth(path, CAL, n_frames=10)

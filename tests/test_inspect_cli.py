@@ -102,3 +102,33 @@ def test_inspect_shared_drives(name, drive_path, capsys):
     assert "0 more outside events" in out
     assert gt in out
     assert "bad disparities:" in out and "far points:" in out
+
+
+def test_inspect_reports_dropped_partial_observations(tmp_path, capsys, caplog):
+    # Issue 11, item 6: a half-missing observation is dropped, and inspect says so.
+    path = small_drive(tmp_path)
+    with np.load(path) as data:
+        arrays = dict(data)
+    arrays["features"][2:, 1, 3] = -1  # track 1, frame 3: the right image's pixels missing
+    arrays["features"][1, 0, 0] = -7.5  # track 0, frame 0: a negative coordinate
+    np.savez(path, **arrays)
+    assert main(["inspect", str(path)]) == 0
+    captured = capsys.readouterr()
+    assert ("invalid observations: 2 dropped as unobserved (1 partial: one to three of uL, vL, "
+            "uR, vR are -1; 1 with another negative coordinate), first at track 0, frame 0"
+            ) in captured.out
+    assert "tracks: 4 (4 observed), observations 17" in captured.out
+    # The loader's warning (on stderr outside pytest), once, naming the file.
+    warned = [r.getMessage() for r in caplog.records if "treated as unobserved" in r.getMessage()]
+    assert len(warned) == 1 and str(path) in warned[0]
+    small_drive(tmp_path)
+    assert main(["inspect", str(path)]) == 0
+    assert "invalid observations: none" in capsys.readouterr().out
+
+
+def test_inspect_ground_truth_folder_is_an_error(tmp_path, capsys):
+    path = small_drive(tmp_path)
+    (tmp_path / "groundtruth" / "tiny.txt").mkdir(parents=True)
+    assert main(["inspect", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "tiny.txt: is a directory" in err

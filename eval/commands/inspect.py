@@ -1,7 +1,8 @@
 """`vislam inspect FILE [--gt FILE]`: summarise a data file before estimating.
 
-Prints frames and timing, tracks and observations, the repeated-observation events and bad
-disparities that the cleaning step repairs (:mod:`ekf.cleaning`), far points, velocity
+Prints frames and timing, tracks and observations, the invalid observations the loader dropped
+(partial or negative pixel coordinates, :mod:`eval.loader`), the repeated-observation events
+and bad disparities that the cleaning step repairs (:mod:`ekf.cleaning`), far points, velocity
 statistics, and whether ground truth was found.
 """
 
@@ -14,7 +15,7 @@ import numpy as np
 
 from ekf.cleaning import clean_sequence, find_repeat_events
 from eval.groundtruth import find_ground_truth
-from eval.loader import load_sequence
+from eval.loader import load_sequence_with_report
 
 #: Depth (m) beyond which a point counts as far; its disparity is fsu * b / FAR_DEPTH px.
 FAR_DEPTH = 80.0
@@ -49,7 +50,7 @@ def _frames_text(frames: list[int]) -> str:
 
 def summarise(path: Path, gt_path: Path | None = None) -> list[str]:
     """The lines ``vislam inspect`` prints."""
-    seq = load_sequence(path)
+    seq, load_report = load_sequence_with_report(path)
     cal = seq.calibration
     lines = [f"file: {path}"]
     T = seq.n_frames
@@ -67,6 +68,16 @@ def summarise(path: Path, gt_path: Path | None = None) -> list[str]:
     lines.append(
         f"tracks: {seq.n_tracks} ({observed.size} observed), observations {len(seq.obs)}"
     )
+    if load_report.n_invalid:
+        j, t = load_report.first_invalid
+        lines.append(
+            f"invalid observations: {load_report.n_invalid} dropped as unobserved "
+            f"({load_report.n_partial} partial: one to three of uL, vL, uR, vR are -1; "
+            f"{load_report.n_negative} with another negative coordinate), first at track {j}, "
+            f"frame {t}"
+        )
+    else:
+        lines.append("invalid observations: none (no partial or negative pixel coordinates)")
     lines.append(f"observations per frame: {_mmm(seq.obs.per_frame, '{:.0f}')}")
     lines.append(
         f"track lengths (frames): {_mmm(observed, '{:.0f}')}, "
