@@ -6,6 +6,7 @@ import numpy as np
 
 from ekf.config import FilterConfig
 from ekf.estimate import Estimate
+from ekf.numerics import NumericalGuard, check_finite_trajectory
 from ekf.prediction import predict_pose
 from ekf.runner import (
     Progress,
@@ -20,9 +21,13 @@ from ekf.sequence import Sequence
 
 
 def dead_reckon(
-    seq: Sequence, config: FilterConfig, rec: StepRecorder, progress: Progress = None
+    seq: Sequence, config: FilterConfig, rec: StepRecorder, progress: Progress = None,
+    name: str = "dead-reckoning",
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Fill ``rec`` with the predicted poses; returns the inverse poses (T,4,4) and covs."""
+    """Fill ``rec`` with the predicted poses; returns the inverse poses (T,4,4) and covs.
+
+    A pose or covariance that is not finite (an absurd but finite twist or time step) is an
+    EstimationError of estimator ``name`` naming the first such frame."""
     tau, u = interval_twists(seq, config)
     W = config.velocity_cov
     T = seq.n_frames
@@ -36,6 +41,7 @@ def dead_reckon(
             rec.record_pose(t, U, Sigma)
             Us[t], Sigmas[t] = U, Sigma
         report_progress(progress, t, T)
+    check_finite_trajectory(NumericalGuard(name, seq.timestamps), Us, Sigmas, " after prediction")
     return Us, Sigmas
 
 

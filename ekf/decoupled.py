@@ -19,6 +19,7 @@ import numpy as np
 from ekf.config import FilterConfig
 from ekf.estimate import Estimate
 from ekf.mapping import LandmarkMap
+from ekf.numerics import NumericalGuard, UpdateRejected, all_finite
 from ekf.prediction import predict_pose, se3_exp_single
 from ekf.runner import (
     Progress,
@@ -49,30 +50,54 @@ def pose_update_exact_landmarks(
     (no cross-covariance is kept either way); without it the landmarks are exact, as the paper
     writes it. Returns ``(U, Sigma, accepted (n,))``.
     """
+    U, Sigma, accepted, _ = pose_update_checked(model, U, Sigma, m, z, landmark_cov, widen)
+    return U, Sigma, accepted
+
+
+def pose_update_checked(
+    model: StereoModel,
+    U: np.ndarray,
+    Sigma: np.ndarray,
+    m: np.ndarray,
+    z: np.ndarray,
+    landmark_cov: np.ndarray | None = None,
+    widen: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """:func:`pose_update_exact_landmarks` and the number of observations the gate rejected
+    because their innovation covariance could not be used (singular, not finite).
+
+    Raises :class:`~ekf.numerics.UpdateRejected` (nothing changed) when the stacked update
+    itself cannot be computed: a singular or non-finite information matrix, a posterior
+    covariance that is not finite or not positive definite, a non-finite correction."""
     q = model.camera_points(U, m)
     ok = model.valid_predictions(q)
     idx = np.nonzero(ok)[0]
     accepted = np.zeros(m.shape[0], dtype=bool)
     if idx.size == 0:
-        return U, Sigma, accepted
+        return U, Sigma, accepted, 0
     q, m_i, z_i = q[idx], m[idx], z[idx]
     Hp, Hm = model.jacobians(U, m_i, q, reduced=True)  # (k,3,6), (k,3,3)
     R = np.broadcast_to(model.R3, (idx.size, 3, 3))
     Rm = R if landmark_cov is None else R + Hm @ landmark_cov[idx] @ np.swapaxes(Hm, 1, 2)
     S3 = Hp @ Sigma @ np.swapaxes(Hp, 1, 2) + Rm
-    acc = model.gate_mask(z_i, q, S3)
+    acc, n_bad = model.gate_check(z_i, q, S3)
     if not np.any(acc):
-        return U, Sigma, accepted
+        return U, Sigma, accepted, n_bad
     H = Hp[acc]  # (a, 3, 6)
     r = model.reduced_innovation(z_i[acc], q[acc])  # (a, 3)
-    Rinv = np.linalg.inv((Rm if widen else R)[acc])
-    HtRinv = np.swapaxes(H, 1, 2) @ Rinv  # (a, 6, 3)
-    info = np.linalg.inv(Sigma) + np.einsum("aij,ajk->ik", HtRinv, H)
-    Sigma_new = np.linalg.inv(info)
+    try:
+        Rinv = np.linalg.inv((Rm if widen else R)[acc])
+        HtRinv = np.swapaxes(H, 1, 2) @ Rinv  # (a, 6, 3)
+        info = np.linalg.inv(Sigma) + np.einsum("aij,ajk->ik", HtRinv, H)
+        Sigma_new = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        raise UpdateRejected("pose information matrix singular") from None
     Sigma_new = 0.5 * (Sigma_new + Sigma_new.T)
     d = Sigma_new @ np.einsum("aij,aj->i", HtRinv, r)
+    if not (all_finite(Sigma_new, d) and Sigma_new.ravel()[::7].min() > 0):
+        raise UpdateRejected("pose covariance or correction not finite, or a variance not positive")
     accepted[idx[acc]] = True
-    return se3_exp_single(d) @ U, Sigma_new, accepted  # paper eq. 14: mu <- exp((K r)^) mu
+    return se3_exp_single(d) @ U, Sigma_new, accepted, n_bad  # paper eq. 14: mu <- exp((K r)^) mu
 
 
 def run_decoupled(
@@ -95,6 +120,8 @@ def run_decoupled(
     tau, u = interval_twists(seq, config)
     W = config.velocity_cov
     lm = LandmarkMap(seq.n_tracks)
+    name = "ekf-decoupled"
+    guard = NumericalGuard(name, seq.timestamps)
     U, Sigma = np.eye(4), config.initial_pose_cov
     with blas_limits(config):
         for t in range(seq.n_frames):
@@ -102,23 +129,30 @@ def run_decoupled(
             with rec.step(t):
                 if t > 0:
                     U, Sigma = predict_pose(U, Sigma, tau[t - 1], u[t - 1], W)
+                    guard.check_state(t, U, Sigma)
                 valid = model.valid_observations(z)
                 known = valid & lm.initialised[tracks]
-                n_pose = 0
+                n_pose = n_num = 0
                 if np.any(known):
                     tr = tracks[known]
-                    U, Sigma, acc = pose_update_exact_landmarks(
-                        model, U, Sigma, lm.mean[tr], z[known], lm.cov[tr], widen=not as_written
-                    )
+                    try:
+                        U, Sigma, acc, n_num = pose_update_checked(
+                            model, U, Sigma, lm.mean[tr], z[known], lm.cov[tr], widen=not as_written
+                        )
+                    except UpdateRejected as exc:
+                        guard.reject(t, str(exc), int(tr.size))
+                        acc = np.zeros(tr.size, dtype=bool)
                     n_pose = int(acc.sum())
                     # Observations rejected by the pose gate are not used for mapping either.
                     drop = np.nonzero(known)[0][~acc]
                     valid[drop] = False
-                _, _, n_init = lm.observe(model, U, tracks[valid], z[valid])
+                _, _, n_init, n_num_map = lm.observe(model, U, tracks[valid], z[valid])
+                if n_num + n_num_map:
+                    guard.reject(t, "innovation covariance singular or not finite", n_num + n_num_map)
                 rec.n_updates[t] = n_pose
                 rec.n_initialised[t] = n_init
                 rec.n_rejected[t] = tracks.size - n_pose - n_init
                 rec.record_pose(t, U, Sigma)
             report_progress(progress, t, seq.n_frames)
     info["decoupled_as_written"] = bool(as_written)
-    return build_estimate("ekf-decoupled", seq, rec, lm.mean, lm.cov, config, info)
+    return build_estimate(name, seq, rec, lm.mean, lm.cov, config, info, guard)

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ekf.errors import EstimationError
+
 _ARRAYS = (
     "timestamps",
     "poses",
@@ -47,7 +49,11 @@ class Estimate:
     ``step_time_s`` (T,) wall time spent on each step; ``n_updates`` (T,) observations used in
     updates; ``n_rejected`` (T,) observations rejected (gating, disparity, depth, cheirality);
     ``n_initialised`` (T,) landmarks initialised; ``info`` free-form JSON-able settings and
-    summary figures (e.g. the smoother's time split).
+    summary figures (e.g. the smoother's time split). Every estimator sets
+    ``info["numerical_rejections"]`` (frames whose update was rejected because it could not be
+    computed, :mod:`ekf.numerics`; their observations count in ``n_rejected``) and
+    ``info["numerical_rejection_frames"]`` (the first 20 of them), and returns only finite
+    poses and pose covariances (:meth:`check_finite`).
     """
 
     estimator: str
@@ -97,8 +103,44 @@ class Estimate:
             n_initialised=np.zeros(T, dtype=np.int64),
         )
 
+    def check_finite(self) -> None:
+        """EstimationError naming the estimator and the first frame whose pose or pose
+        covariance is not finite, or the first landmark that :attr:`has_landmark` says exists
+        whose mean or covariance is not finite (landmarks without an estimate are NaN by
+        design and pass). Pose covariances that were not computed at all (a smoother with
+        ``compute_marginals = false``: ``info["marginals_computed"]`` False) are all NaN by
+        design too."""
+        T = self.n_frames
+        poses = np.asarray(self.poses, dtype=float).reshape(T, -1)
+        cov = np.asarray(self.pose_cov, dtype=float).reshape(T, -1)
+        no_cov = self.info.get("marginals_computed", True) is False
+        checks = [("pose", poses)]
+        if not (no_cov and np.isnan(cov).all()):
+            checks.append(("pose covariance", cov))
+        for what, arr in checks:
+            bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+            if bad.size:
+                t = int(bad[0])
+                stamp = float(self.timestamps[t]) if t < np.size(self.timestamps) else float("nan")
+                raise EstimationError(
+                    f"{self.estimator}: frame {t} (t={stamp:.2f} s): {what} not finite"
+                )
+        lm = np.asarray(self.landmarks, dtype=float)
+        partial = np.flatnonzero(~self.has_landmark & ~np.isnan(lm).all(axis=1))
+        if partial.size:
+            raise EstimationError(f"{self.estimator}: landmark {int(partial[0])}: mean not finite")
+        if lm.shape[0] and not (no_cov and np.isnan(self.landmark_cov).all()):
+            lcov = np.asarray(self.landmark_cov, dtype=float).reshape(lm.shape[0], -1)
+            bad = np.flatnonzero(self.has_landmark & ~np.isfinite(lcov).all(axis=1))
+            if bad.size:
+                raise EstimationError(
+                    f"{self.estimator}: landmark {int(bad[0])}: covariance not finite"
+                )
+
     def save_npz(self, path: str | os.PathLike) -> None:
-        """Write atomically (temporary file, then rename) to ``path``."""
+        """Write atomically (temporary file, then rename) to ``path``; an estimate with a
+        non-finite pose or landmark (:meth:`check_finite`) is refused before anything is written."""
+        self.check_finite()
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {k: getattr(self, k) for k in _ARRAYS}

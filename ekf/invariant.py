@@ -54,8 +54,16 @@ from scipy.stats import chi2
 from ekf.camera import dpi_dq, project, triangulate_unscented, triangulate_with_jacobian
 from ekf.config import FilterConfig
 from ekf.conventions import left_cov_to_estimate
-from ekf.errors import EstimationError
 from ekf.estimate import Estimate
+from ekf.numerics import (
+    NumericalGuard,
+    UpdateRejected,
+    all_finite,
+    batched_inv,
+    batched_solve,
+    finite_norm2,
+    finite_rows,
+)
 from ekf.geometry import (
     adjoint,
     hat,
@@ -64,7 +72,7 @@ from ekf.geometry import (
     so3_log,
 )
 from ekf.prediction import se3_exp_single, se3_left_jacobian, so3_exp_and_left_jacobian
-from ekf.runner import blas_limits, interval_twists, prepare_sequence
+from ekf.runner import blas_limits, finish_estimate, interval_twists, prepare_sequence
 from ekf.sequence import Sequence
 
 
@@ -202,8 +210,9 @@ def run_invariant(
     ``progress`` is called after each frame with the number of frames finished.
     """
     seq, info = prepare_sequence(seq, config)
+    guard = NumericalGuard(ESTIMATOR_NAME, seq.timestamps)
     with blas_limits(config):
-        est = _run(seq, config, progress)
+        est = _run(seq, config, progress, guard)
     est.info.update(info)
     est.info.update(
         {
@@ -212,10 +221,10 @@ def run_invariant(
             "error_state": "right-invariant SE_{1+K}(3): [xi_p, xi_R, (xi_b), xi_l...]",
         }
     )
-    return est
+    return finish_estimate(est, guard)
 
 
-def _run(seq: Sequence, config: FilterConfig, progress) -> Estimate:
+def _run(seq: Sequence, config: FilterConfig, progress, guard: NumericalGuard) -> Estimate:
     cal = seq.calibration
     M = cal.M
     cam_T_imu = np.asarray(cal.cam_T_imu, dtype=float)
@@ -251,13 +260,25 @@ def _run(seq: Sequence, config: FilterConfig, progress) -> Estimate:
     for t in range(Tn):
         t0 = time.perf_counter()
         if t > 0:
-            _propagate(st, twists[t - 1], dt[t - 1], W_chol, config, off)
+            if not _propagate(st, twists[t - 1], dt[t - 1], W_chol, config, off):
+                raise guard.error(t, "state covariance not finite after prediction")
+            guard.check_state(t, st.T, st.P[:off, :off])
         tracks, z = seq.frame(t)
         slots = slot_of[tracks]
         old = slots >= 0
-        n_used, n_rej = _update(st, slots[old], z[old], M, cam_T_imu, V, Vinv, gate, config, off)
+        try:
+            n_used, n_rej, n_num = _update(
+                st, slots[old], z[old], M, cam_T_imu, V, Vinv, gate, config, off
+            )
+        except UpdateRejected as exc:
+            guard.reject(t, str(exc), int(old.sum()))
+            n_used, n_rej, n_num = 0, int(old.sum()), 0
         fresh = (~old) & (~done[tracks])
-        n_init, n_rej_new = _augment(st, tracks[fresh], z[fresh], cal, imu_T_cam, V, config, off, slot_of)
+        n_init, n_rej_new, n_num_new = _augment(
+            st, tracks[fresh], z[fresh], cal, imu_T_cam, V, config, off, slot_of
+        )
+        if n_num + n_num_new:
+            guard.reject(t, "innovation covariance or triangulation not finite", n_num + n_num_new)
         if not config.keep_landmarks:
             _marginalise(st, last_frame, t, off, slot_of, done, est)
         est.poses[t] = st.T
@@ -284,9 +305,12 @@ def _run(seq: Sequence, config: FilterConfig, progress) -> Estimate:
     return est
 
 
-def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConfig, off: int) -> None:
+def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConfig, off: int) -> bool:
     """Paper eq. 11 in group form: ``T <- T exp(tau u)``; ``P <- P + tau^2 B W B^T`` (the error
-    transition is the identity), plus the bias coupling with a gyro-bias state."""
+    transition is the identity), plus the bias coupling with a gyro-bias state.
+
+    Returns False when the noise term is not finite (an absurd but finite twist or time step;
+    the caller raises)."""
     u = np.array(u, dtype=float)
     if st.bias is not None:
         u[3:] -= st.bias
@@ -302,16 +326,25 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConf
         P += FPb + FPb.T + F @ Pbb @ F.T
         P[B_IDX, B_IDX] += config.gyro_bias_walk**2 * tau * np.eye(3)
     BL = tau * (B @ W_chol)
+    if not finite_norm2(BL):
+        return False
     P += BL @ BL.T
     st.T = st.T @ se3_exp_single(twist)
+    return True
 
 
 def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterConfig, off: int):
     """Stacked update (paper eq. 14 in group form: ``X <- exp(K r) X``) with the frame's
-    observations of landmarks already in the state; returns (used, rejected)."""
+    observations of landmarks already in the state; returns (used, rejected, numerical), the
+    last the observations rejected (and counted in ``rejected``) because their own innovation
+    covariance or information could not be used (singular, not finite).
+
+    Raises :class:`~ekf.numerics.UpdateRejected`, with the state unchanged, when the stacked
+    update cannot be computed (innovation covariance not positive definite, a non-finite
+    gain or correction, a pose variance that would not stay positive)."""
     k = slots.size
     if k == 0:
-        return 0, 0
+        return 0, 0, 0
     R, p = st.T[:3, :3], st.T[:3, 3]
     C, c_t = cam_T_imu[:3, :3], cam_T_imu[:3, 3]
     lm = st.landmarks[slots]
@@ -324,8 +357,9 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
         & (disp >= config.min_disparity)
     )
     n_rej = int(k - valid.sum())
+    n_num = 0
     if not valid.any():
-        return 0, n_rej
+        return 0, n_rej, 0
     slots, z, q = slots[valid], z[valid], q[valid]
     k = slots.size
     r = z - project(M, homogeneous(q))
@@ -337,19 +371,31 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
         Plp = P[li, :3]  # (k, 3, 3): rows l, cols p
         Pe = Pll - Plp - np.swapaxes(Plp, 1, 2) + P[:3, :3]
         S4 = A @ Pe @ np.swapaxes(A, 1, 2) + V
-        m2 = np.einsum("ki,ki->k", r, np.linalg.solve(S4, r[:, :, None])[:, :, 0])
-        ok = m2 <= gate
+        m2 = np.einsum("ki,ki->k", r, batched_solve(S4, r[:, :, None])[:, :, 0])
+        ok = m2 <= gate  # NaN (singular S4, overflow) is rejected
+        if not np.isfinite(m2.sum()):
+            n_num += int(k - np.isfinite(m2).sum())
         n_rej += int(k - ok.sum())
         if not ok.any():
-            return 0, n_rej
+            return 0, n_rej, n_num
         slots, r, A, li = slots[ok], r[ok], A[ok], li[ok]
         k = slots.size
     # Compress each 4-d stereo observation to an equivalent 3-d one on xi_l - xi_p (exact
     # for the linear-Gaussian update: A has full column rank).
     AtVi = np.swapaxes(A, 1, 2) @ Vinv  # (k, 3, 4)
     Lam = AtVi @ A  # information (k, 3, 3)
-    Lam_inv = np.linalg.inv(Lam)
-    y = (Lam_inv @ (AtVi @ r[:, :, None]))[:, :, 0].ravel()  # (3k,)
+    Lam_inv = batched_inv(Lam)
+    y3 = (Lam_inv @ (AtVi @ r[:, :, None]))[:, :, 0]  # (k, 3)
+    if not all_finite(Lam_inv, y3):
+        fin = finite_rows(Lam_inv) & finite_rows(y3)
+        n_bad = int(k - fin.sum())
+        n_num += n_bad
+        n_rej += n_bad
+        if not fin.any():
+            return 0, n_rej, n_num
+        slots, li, Lam_inv, y3 = slots[fin], li[fin], Lam_inv[fin], y3[fin]
+        k = slots.size
+    y = y3.ravel()  # (3k,)
     lflat = li.ravel()
     n = P.shape[0]
     PHt = (P.take(lflat, axis=1).reshape(n, k, 3) - P[:, None, :3]).reshape(n, 3 * k)  # P E^T
@@ -357,27 +403,37 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
     S.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :] += Lam_inv
     L, info = dpotrf(S, lower=1, clean=0, overwrite_a=1)
     if info != 0:
-        raise EstimationError(f"innovation covariance of {k} observations not positive definite")
+        raise UpdateRejected(f"innovation covariance of {k} observations not positive definite")
     Wt = dtrsm(1.0, L, PHt.T, lower=1)  # L^-1 E P, (3k, n)
     delta = Wt.T @ dtrsm(1.0, L, y[:, None], lower=1)[:, 0]
     # P - K S K^T = P - (L^-1 E P)^T (L^-1 E P); a^T a is computed symmetric (syrk).
-    st.P = P - Wt.T @ Wt
+    P_new = P - Wt.T @ Wt
+    # Every posterior variance finite and positive (a NaN or inf anywhere in the gain shows on
+    # the diagonal, and bounds the off-diagonal terms), and a finite correction.
+    if not (P_new.diagonal().min() > 0 and np.isfinite(delta).all()):
+        raise UpdateRejected(
+            f"gain of {k} observations not finite or a variance not positive after it"
+        )
+    st.P = P_new
     st.T, st.landmarks, st.bias = retract(st.T, st.landmarks, delta, st.bias)
-    return k, n_rej
+    return k, n_rej, n_num
 
 
 def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off, slot_of):
-    """Add triangulated landmarks of tracks seen for the first time (or never accepted yet)."""
+    """Add triangulated landmarks of tracks seen for the first time (or never accepted yet).
+
+    Returns ``(initialised, rejected, numerical)``, the last the tracks (counted in
+    ``rejected``) whose landmark or covariance is not finite (an absurd but finite pixel)."""
     k = tracks.size
     if k == 0:
-        return 0, 0
+        return 0, 0, 0
     disp = z[:, 0] - z[:, 2]
     ok = (disp > 0) & (disp >= config.min_disparity)
     pc, Jt = triangulate_with_jacobian(np.where(ok[:, None], z, [1.0, 0.0, 0.0, 0.0]), cal.K, cal.baseline)
     ok &= np.isfinite(pc).all(axis=1) & (pc[:, 2] > 0) & (pc[:, 2] <= config.max_depth)
     n_rej = int(k - ok.sum())
     if not ok.any():
-        return 0, n_rej
+        return 0, n_rej, 0
     tracks, pc, Jt = tracks[ok], pc[ok], Jt[ok]
     k = tracks.size
     R, p = st.T[:3, :3], st.T[:3, 3]
@@ -391,6 +447,15 @@ def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off
         Cn = Gz @ V @ np.swapaxes(Gz, 1, 2)
     c = pc @ imu_T_cam[:3, :3].T + imu_T_cam[:3, 3]
     lm_new = c @ R.T + p
+    n_num = 0
+    if not all_finite(lm_new, Cn):
+        fin = finite_rows(lm_new) & finite_rows(Cn)
+        n_num = int(k - fin.sum())
+        n_rej += n_num
+        if n_num == k:
+            return 0, n_rej, n_num
+        tracks, lm_new, Cn = tracks[fin], lm_new[fin], Cn[fin]
+        k = tracks.size
     P = st.P
     n = P.shape[0]
     Pn = np.empty((n + 3 * k, n + 3 * k))
@@ -407,7 +472,7 @@ def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off
     st.landmarks = np.vstack([st.landmarks, lm_new])
     st.tracks = np.concatenate([st.tracks, tracks])
     slot_of[tracks] = K0 + np.arange(k)
-    return k, n_rej
+    return k, n_rej, n_num
 
 
 def _marginalise(st: _State, last_frame, t, off, slot_of, done, est: Estimate) -> None:

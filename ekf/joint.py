@@ -24,8 +24,8 @@ from scipy.linalg import cholesky, solve_triangular
 from scipy.linalg.blas import dsyrk
 
 from ekf.config import FilterConfig
-from ekf.errors import EstimationError
 from ekf.estimate import Estimate
+from ekf.numerics import NumericalGuard, UpdateRejected, all_finite, finite_norm2, finite_rows
 from ekf.geometry import adjoint, hat
 from ekf.prediction import (
     se3_exp_single,
@@ -64,6 +64,7 @@ class JointState:
         self.lm_mean = np.zeros((0, 3))
         self.lm_first = np.zeros((0, 3))  # first estimates (FEJ linearisation points)
         self.linearisation = config.joint_linearisation
+        self.n_numerical = 0  # observations the last update gated out for numerical reasons
         self.lm_track = np.zeros(0, dtype=np.int64)
         self.slot = -np.ones(n_tracks, dtype=np.int64)
         self.ever = np.zeros(n_tracks, dtype=bool)
@@ -103,7 +104,14 @@ class JointState:
     # --- update -------------------------------------------------------------------------
     def update(self, model: StereoModel, tracks: np.ndarray, z: np.ndarray) -> tuple[int, int]:
         """One stacked update with the observations of active landmarks (paper eq. 8 + 14
-        jointly). ``tracks`` must all be active. Returns ``(n_accepted, n_rejected)``."""
+        jointly). ``tracks`` must all be active. Returns ``(n_accepted, n_rejected)``.
+
+        Observations whose own innovation covariance is unusable (singular, not finite) are
+        gated out and counted in ``self.n_numerical``. Raises
+        :class:`~ekf.numerics.UpdateRejected`, with the state unchanged, when the stacked
+        update cannot be computed (``S`` not positive definite, a non-finite gain or
+        correction, a pose or bias variance that would not stay positive)."""
+        self.n_numerical = 0
         if tracks.size == 0:
             return 0, 0
         slots = self.slot[tracks]
@@ -139,7 +147,7 @@ class JointState:
             3 * k, 3 * k
         )
         S3_diag = S.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :] + model.R3
-        acc = model.gate_mask(z, q, S3_diag)
+        acc, self.n_numerical = model.gate_check(z, q, S3_diag)
         a = int(acc.sum())
         if a == 0:
             return 0, int(tracks.size)
@@ -152,10 +160,10 @@ class JointState:
         S.reshape(a, 3, a, 3)[np.arange(a), :, np.arange(a), :] += model.R3
         try:
             L = cholesky(S, lower=True, check_finite=False)
-        except np.linalg.LinAlgError as exc:
-            raise EstimationError(
-                f"joint EKF: innovation covariance of {a} observations is not positive definite"
-            ) from exc
+        except np.linalg.LinAlgError:
+            raise UpdateRejected(
+                f"innovation covariance of {a} observations not positive definite"
+            ) from None
         # One triangular solve for Y = L^-1 (P H^T)^T and e = L^-1 r (r as an extra column).
         B = np.empty((N + 1, 3 * a))
         B[:N] = PHt
@@ -163,6 +171,15 @@ class JointState:
         Ye = solve_triangular(L, B.T, lower=True, check_finite=False, overwrite_b=True)
         Y, e = Ye[:, :N], Ye[:, N]
         dx = Y.T @ e  # = K r
+        c = self.core
+        if not (
+            np.isfinite(dx).all()
+            and finite_norm2(Ye)
+            and np.all(np.einsum("ij,ij->j", Y[:, :c], Y[:, :c]) < P.diagonal()[:c])
+        ):
+            raise UpdateRejected(
+                f"gain of {a} observations not finite or pose covariance not positive after it"
+            )
         symmetric_downdate(P, Y)  # P <- P - Y^T Y = P - K S K^T
         E = se3_exp_single(dx[:6])
         R_prior = self.U[:3, :3].copy()
@@ -182,10 +199,19 @@ class JointState:
         """Add landmarks of ``tracks`` (new, valid observations ``z``) with cross-covariances.
 
         Tracks with ``ends_now`` go straight to the map (they will never be observed again).
+        Returns the number of tracks not initialised because their triangulation is not
+        finite (an absurd but finite observation).
         """
         if tracks.size == 0:
-            return
+            return 0
         m, J_d, Cz = model.initialise_with_cov(self.U, z)  # Cz: the pixel-noise part
+        n_bad = 0
+        if not all_finite(m, J_d, Cz):
+            fin = finite_rows(m) & finite_rows(J_d) & finite_rows(Cz)
+            n_bad = int(fin.size - fin.sum())
+            tracks, m, J_d, Cz, ends_now = tracks[fin], m[fin], J_d[fin], Cz[fin], ends_now[fin]
+            if tracks.size == 0:
+                return n_bad
         Pdd = self.P[:6, :6]
         self.ever[tracks] = True
         if np.any(ends_now):
@@ -197,7 +223,7 @@ class JointState:
         add = ~ends_now
         n = int(add.sum())
         if n == 0:
-            return
+            return n_bad
         m, J_d, Cz = m[add], J_d[add], Cz[add]
         Jd = J_d.reshape(3 * n, 6)
         B = Jd @ self.P[:6, :]  # cross-covariance with the whole state (3n, N)
@@ -215,6 +241,7 @@ class JointState:
         self.lm_first = np.concatenate([self.lm_first, m])
         self.lm_track = np.concatenate([self.lm_track, tracks[add]])
         self.slot[tracks[add]] = first + np.arange(n)
+        return n_bad
 
     def landmark_covs(self, slots: np.ndarray) -> np.ndarray:
         rows = self.landmark_rows(slots)
@@ -313,6 +340,8 @@ def run_joint(
     ending = tracks_ending(seq)
     last = seq.track_last_frame()
     st = JointState(config, seq.n_tracks)
+    guard = NumericalGuard("ekf-joint", seq.timestamps)
+    c = st.core
     max_dim = st.P.shape[0]
     with blas_limits(config):
         for t in range(seq.n_frames):
@@ -320,22 +349,32 @@ def run_joint(
             with rec.step(t):
                 if t > 0:
                     st.predict(tau[t - 1], u[t - 1], config)
+                    guard.check_state(t, st.U, st.P[:c, :c])
                 valid = model.valid_observations(z)
                 active = st.slot[tracks] >= 0
                 upd = valid & active
-                n_acc, n_rej = st.update(model, tracks[upd], z[upd])
+                try:
+                    n_acc, n_rej = st.update(model, tracks[upd], z[upd])
+                    n_num = st.n_numerical
+                except UpdateRejected as exc:
+                    guard.reject(t, str(exc), int(upd.sum()))
+                    n_acc, n_num = 0, 0
                 new = valid & ~active & ~st.ever[tracks]
-                st.initialise(model, tracks[new], z[new], last[tracks[new]] <= t)
+                n_bad_init = st.initialise(model, tracks[new], z[new], last[tracks[new]] <= t)
+                n_init = int(new.sum()) - n_bad_init
+                n_num += n_bad_init
+                if n_num:
+                    guard.reject(t, "innovation covariance or triangulation not finite", n_num)
                 max_dim = max(max_dim, st.P.shape[0])
                 if not config.keep_landmarks:
                     st.marginalise(ending[t])
                 rec.n_updates[t] = n_acc
-                rec.n_initialised[t] = int(new.sum())
-                rec.n_rejected[t] = tracks.size - n_acc - int(new.sum())
+                rec.n_initialised[t] = n_init
+                rec.n_rejected[t] = tracks.size - n_acc - n_init
                 rec.record_pose(t, st.U, st.P[:6, :6])
             report_progress(progress, t, seq.n_frames)
     st.flush()
     info["max_state_dim"] = int(max_dim)
     if config.gyro_bias:
         info["gyro_bias"] = st.bias.tolist()
-    return build_estimate("ekf-joint", seq, rec, st.map_mean, st.map_cov, config, info)
+    return build_estimate("ekf-joint", seq, rec, st.map_mean, st.map_cov, config, info, guard)

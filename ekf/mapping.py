@@ -13,9 +13,10 @@ import numpy as np
 from ekf.config import FilterConfig
 from ekf.dead_reckoning import dead_reckon
 from ekf.estimate import Estimate
+from ekf.numerics import NumericalGuard, all_finite, finite_rows
 from ekf.runner import Progress, StepRecorder, blas_limits, build_estimate, prepare_sequence
 from ekf.sequence import Sequence
-from ekf.stereo_update import StereoModel, batched_landmark_update
+from ekf.stereo_update import StereoModel, batched_landmark_update_checked
 
 
 class LandmarkMap:
@@ -29,26 +30,36 @@ class LandmarkMap:
     def observe(self, model: StereoModel, U: np.ndarray, tracks: np.ndarray, z: np.ndarray):
         """Update the initialised tracks (paper eq. 8), initialise the new ones.
 
-        Returns ``(n_updates, n_rejected, n_initialised)``.
+        Returns ``(n_updates, n_rejected, n_initialised, n_numerical)``, the last the
+        observations (included in ``n_rejected``) whose update or initialisation could not be
+        computed (:mod:`ekf.numerics`; the landmark keeps its prior or stays uninitialised).
         """
         valid = model.valid_observations(z)
         known = self.initialised[tracks]
         upd = valid & known
-        n_upd = 0
+        n_upd = n_num = 0
         if np.any(upd):
             tr = tracks[upd]
-            m, P, acc = batched_landmark_update(model, U, self.mean[tr], self.cov[tr], z[upd])
+            m, P, acc, n_num = batched_landmark_update_checked(
+                model, U, self.mean[tr], self.cov[tr], z[upd]
+            )
             self.mean[tr], self.cov[tr] = m, P
             n_upd = int(acc.sum())
         new = valid & ~known
+        n_init = 0
         if np.any(new):
             tr = tracks[new]
             m, _, cov = model.initialise_with_cov(U, z[new])  # the pose is taken as exact
+            if not all_finite(m, cov):
+                ok = finite_rows(m) & finite_rows(cov)
+                n_num += int(ok.size - ok.sum())
+                tr, m, cov = tr[ok], m[ok], cov[ok]
             self.mean[tr] = m
             self.cov[tr] = 0.5 * (cov + np.swapaxes(cov, 1, 2))
             self.initialised[tr] = True
-        n_rej = int(tracks.size - n_upd - int(new.sum()))
-        return n_upd, n_rej, int(new.sum())
+            n_init = int(tr.size)
+        n_rej = int(tracks.size - n_upd - n_init)
+        return n_upd, n_rej, n_init, n_num
 
 
 def run_mapping(
@@ -59,13 +70,16 @@ def run_mapping(
     rec = StepRecorder(seq.n_frames)
     model = StereoModel.from_config(seq.calibration, config)
     lm = LandmarkMap(seq.n_tracks)
+    guard = NumericalGuard("mapping", seq.timestamps)
     with blas_limits(config):
-        Us, _ = dead_reckon(seq, config, rec, None)
+        Us, _ = dead_reckon(seq, config, rec, None, name="mapping")
         for t in range(seq.n_frames):
             tracks, z = seq.frame(t)
             with rec.step(t):
-                n_upd, n_rej, n_init = lm.observe(model, Us[t], tracks, z)
+                n_upd, n_rej, n_init, n_num = lm.observe(model, Us[t], tracks, z)
+                if n_num:
+                    guard.reject(t, "landmark update or initialisation not finite", n_num)
             rec.n_updates[t], rec.n_rejected[t], rec.n_initialised[t] = n_upd, n_rej, n_init
             if progress is not None and ((t + 1) % 10 == 0 or t + 1 == seq.n_frames):
                 progress(t + 1)
-    return build_estimate("mapping", seq, rec, lm.mean, lm.cov, config, info)
+    return build_estimate("mapping", seq, rec, lm.mean, lm.cov, config, info, guard)

@@ -34,6 +34,7 @@ from ekf.conventions import ekf_cov_to_estimate
 from ekf.errors import InputError
 from ekf.estimate import Estimate
 from ekf.geometry import se3_inv
+from ekf.numerics import NumericalGuard, check_finite_trajectory
 from ekf.prediction import paired_velocities
 from ekf.sequence import Sequence
 
@@ -96,9 +97,15 @@ def _report_dict(report) -> dict:
     return {"report": str(report)}
 
 
+@contextlib.contextmanager
 def blas_limits(config: FilterConfig):
-    """Context manager pinning BLAS to ``config.blas_threads`` threads (DESIGN.md: 40x)."""
-    return threadpool_limits(limits=int(config.blas_threads), user_api="blas")
+    """Context manager pinning BLAS to ``config.blas_threads`` threads (DESIGN.md: 40x).
+
+    Inside it numpy's floating-point warnings (overflow, invalid) are off: on absurd but
+    finite input they are expected, and the estimators check the results themselves
+    (:mod:`ekf.numerics`) and reject or raise with one line instead."""
+    with threadpool_limits(limits=int(config.blas_threads), user_api="blas"), np.errstate(all="ignore"):
+        yield
 
 
 def interval_twists(seq: Sequence, config: FilterConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -156,8 +163,12 @@ def build_estimate(
     landmark_cov: np.ndarray | None,
     config: FilterConfig,
     info: dict,
+    guard: NumericalGuard | None = None,
 ) -> Estimate:
-    """Assemble the Estimate; landmarks are indexed by ``seq``'s (cleaned) track indices."""
+    """Assemble the Estimate; landmarks are indexed by ``seq``'s (cleaned) track indices.
+
+    ``guard`` the run's numerical rejections (:mod:`ekf.numerics`); see :func:`finish_estimate`.
+    """
     est = Estimate.empty(name, seq.timestamps, seq.n_tracks)
     est.poses = rec.poses
     est.pose_cov = rec.pose_cov
@@ -171,4 +182,31 @@ def build_estimate(
     est.info = dict(info)
     est.info.setdefault("config", config.to_dict())
     est.info.setdefault("sequence", seq.name)
+    finish_estimate(est, guard if guard is not None else NumericalGuard(name, seq.timestamps))
+    return est
+
+
+def finish_estimate(est: Estimate, guard: NumericalGuard, check_cov: bool = True) -> Estimate:
+    """What every estimator does last: record the numerical rejections in ``est.info``, raise
+    the estimator's EstimationError if a pose or pose covariance is not finite (naming the first
+    such frame), and drop landmarks whose mean or covariance is not finite (logged; they count
+    in ``info["n_landmarks_not_finite"]``) so that the estimate passes
+    :meth:`Estimate.check_finite`. ``check_cov=False``: the pose covariances were not computed
+    (NaN by design), only the poses are checked."""
+    est.info.update(guard.info())
+    check_finite_trajectory(guard, est.poses, est.pose_cov if check_cov else np.zeros((est.n_frames, 1)))
+    lm, cov = est.landmarks, est.landmark_cov
+    if lm.shape[0]:
+        ok = np.isfinite(lm).all(axis=1)
+        if check_cov:
+            ok &= np.isfinite(cov.reshape(cov.shape[0], -1)).all(axis=1)
+        bad = ~ok & ~np.isnan(lm).all(axis=1)
+        if bad.any():
+            log.warning("%s: %d landmarks with a non-finite mean or covariance dropped from the map",
+                        est.estimator, int(bad.sum()))
+            est.landmarks = lm.copy()
+            est.landmark_cov = cov.copy()
+            est.landmarks[bad] = np.nan
+            est.landmark_cov[bad] = np.nan
+        est.info["n_landmarks_not_finite"] = int(bad.sum())
     return est

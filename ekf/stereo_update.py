@@ -21,6 +21,7 @@ innovation covariance of each observation, used for gating, is recovered exactly
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +29,7 @@ from scipy.stats import chi2
 
 from ekf.camera import dpi_dq, triangulate_unscented, triangulate_with_jacobian
 from ekf.geometry import hat, se3_inv
+from ekf.numerics import all_finite, batched_solve, finite_rows
 from ekf.sequence import Calibration
 
 #: Maps the reduced rows [uL, v, uR] to the four stereo rows [uL, vL, uR, vR].
@@ -189,16 +191,26 @@ class StereoModel:
         return REDUCE_A @ S3 @ REDUCE_A.T + self.S4_extra
 
     def nis(self, innovation4: np.ndarray, S4: np.ndarray) -> np.ndarray:
-        """Normalised innovation squared ``r^T S^-1 r`` per observation (n,)."""
-        x = np.linalg.solve(S4, innovation4[..., None])[..., 0]
+        """Normalised innovation squared ``r^T S^-1 r`` per observation (n,); NaN where ``S``
+        is singular or the result is not finite (an absurd but finite observation)."""
+        x = batched_solve(S4, innovation4[..., None])[..., 0]
         return np.einsum("ni,ni->n", innovation4, x)
 
     def gate_mask(self, z: np.ndarray, q: np.ndarray, S3: np.ndarray) -> np.ndarray:
         """Chi-square gate of each stereo observation against its own 4x4 S (True: accept)."""
+        return self.gate_check(z, q, S3)[0]
+
+    def gate_check(self, z: np.ndarray, q: np.ndarray, S3: np.ndarray) -> tuple[np.ndarray, int]:
+        """:meth:`gate_mask` and the number of observations it rejected because their NIS
+        could not be computed (singular or non-finite ``S``, overflow): ``(accept (n,), n_bad)``.
+        Without gating, observations whose ``S3`` is not finite are rejected the same way."""
         if not np.isfinite(self.gate):
-            return np.ones(z.shape[0], dtype=bool)
+            ok = finite_rows(S3)
+            return ok, int(ok.size - ok.sum())
         r4 = z - self.predicted_pixels(q)
-        return self.nis(r4, self.full_innovation_cov(S3)) <= self.gate
+        m2 = self.nis(r4, self.full_innovation_cov(S3))
+        n_bad = 0 if math.isfinite(m2.sum()) else int(m2.size - np.isfinite(m2).sum())
+        return m2 <= self.gate, n_bad
 
     # --- initialisation -----------------------------------------------------------------
     def _camera_to_world(self, U: np.ndarray, p_cam: np.ndarray):
@@ -262,25 +274,44 @@ def batched_landmark_update(
     prediction checks (cheirality, depth) and the chi-square gate; rejected rows keep their
     prior. Joseph form keeps each ``P`` symmetric PD. Returns ``(m, P, accepted (n,))``.
     """
+    m, P, accepted, _ = batched_landmark_update_checked(model, U, m, P, z)
+    return m, P, accepted
+
+
+def batched_landmark_update_checked(
+    model: StereoModel,
+    U: np.ndarray,
+    m: np.ndarray,
+    P: np.ndarray,
+    z: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """:func:`batched_landmark_update` and the number of landmark updates it rejected because
+    they could not be computed (singular ``S``, a mean or covariance not finite, a posterior
+    variance not positive): those landmarks keep their prior."""
     q = model.camera_points(U, m)
     ok = model.valid_predictions(q)
     m, P = m.copy(), P.copy()
     if not np.any(ok):
-        return m, P, ok
+        return m, P, ok, 0
     idx = np.nonzero(ok)[0]
     q, mi, Pi, zi = q[idx], m[idx], P[idx], z[idx]
     G = model.landmark_jacobian(U, q, reduced=True)  # (k, 3, 3)
     PGt = Pi @ np.swapaxes(G, 1, 2)
     S3 = G @ PGt + model.R3
-    acc = model.gate_mask(zi, q, S3)
-    K = np.swapaxes(np.linalg.solve(S3, np.swapaxes(PGt, 1, 2)), 1, 2)  # P G^T S^-1
+    acc, n_bad = model.gate_check(zi, q, S3)
+    K = np.swapaxes(batched_solve(S3, np.swapaxes(PGt, 1, 2)), 1, 2)  # P G^T S^-1
     r = model.reduced_innovation(zi, q)
     IKG = np.eye(3) - K @ G
     Pn = IKG @ Pi @ np.swapaxes(IKG, 1, 2) + K @ model.R3 @ np.swapaxes(K, 1, 2)
     Pn = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
+    mn = mi + (K @ r[:, :, None])[:, :, 0]
+    if not (all_finite(Pn, mn) and Pn.reshape(-1, 9)[:, ::4].min() > 0):  # fast path first
+        sound = finite_rows(Pn) & finite_rows(mn) & np.all(Pn.reshape(-1, 9)[:, ::4] > 0, axis=1)
+        n_bad += int(np.sum(acc & ~sound))
+        acc &= sound
     sel = idx[acc]
-    m[sel] = mi[acc] + (K[acc] @ r[acc][:, :, None])[:, :, 0]
+    m[sel] = mn[acc]
     P[sel] = Pn[acc]
     accepted = np.zeros(ok.shape, dtype=bool)
     accepted[sel] = True
-    return m, P, accepted
+    return m, P, accepted, n_bad

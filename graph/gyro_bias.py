@@ -29,6 +29,7 @@ per interval, so well under the cost of a linear solve).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import gtsam
@@ -36,6 +37,8 @@ import numpy as np
 from gtsam.symbol_shorthand import B
 
 from graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
+
+log = logging.getLogger(__name__)
 
 #: The one bias variable (a ``Point3``: rad/s, body frame).
 BIAS_KEY = B(0)
@@ -126,22 +129,51 @@ def estimate_bias(poses: np.ndarray, deltas: np.ndarray, D: np.ndarray, covs: np
 
     This is the bias step of the smoother's alternating scheme (``gyro_bias="alternate"``):
     the bias is determined by the intervals vision constrains, so the poses and the bias are
-    only weakly coupled and two rounds (solve, re-estimate, solve) suffice."""
-    b = np.zeros(3) if initial is None else np.asarray(initial, dtype=float).copy()
-    info = np.linalg.inv(covs)
+    only weakly coupled and two rounds (solve, re-estimate, solve) suffice.
+
+    On degenerate input (non-finite poses or motions, a singular covariance or normal matrix,
+    a non-finite step) the bias cannot be estimated: the last sound value (``initial``, or
+    zero) is returned with a logged warning."""
+    b0 = np.zeros(3) if initial is None else np.asarray(initial, dtype=float).copy()
+    if not np.all(np.isfinite(b0)):
+        b0 = np.zeros(3)
+    b = b0
+
+    def give_up(why: str) -> np.ndarray:
+        log.warning("smoother: gyro bias not estimated (%s); keeping %s rad/s", why,
+                    np.array2string(b0, precision=4))
+        return b0
+
+    if len(deltas) == 0:
+        return b
+    if not (np.isfinite(poses).all() and np.isfinite(deltas).all() and np.isfinite(D).all()
+            and np.isfinite(covs).all()):
+        return give_up("the trajectory or the motions are not finite")
+    try:
+        info = np.linalg.inv(covs)
+    except np.linalg.LinAlgError:
+        return give_up("a motion covariance is singular")
     x = [to_pose3(T) for T in poses]
     measured = [to_pose3(d) for d in deltas]
-    for _ in range(int(iterations)):
-        A = np.eye(3) / prior_sigma**2
-        g = b / prior_sigma**2
-        for k in range(len(deltas)):
-            H: list = []
-            e = biased_motion_error(measured[k], D[k], x[k], x[k + 1], b, H)
-            Hb = H[2]
-            A += Hb.T @ info[k] @ Hb
-            g += Hb.T @ info[k] @ e
-        step = np.linalg.solve(A, -g)
-        b = b + step
-        if np.max(np.abs(step)) < 1e-9:
-            break
+    with np.errstate(all="ignore"):
+        for _ in range(int(iterations)):
+            A = np.eye(3) / prior_sigma**2
+            g = b / prior_sigma**2
+            for k in range(len(deltas)):
+                H: list = []
+                e = biased_motion_error(measured[k], D[k], x[k], x[k + 1], b, H)
+                Hb = H[2]
+                A += Hb.T @ info[k] @ Hb
+                g += Hb.T @ info[k] @ e
+            if not (np.isfinite(A).all() and np.isfinite(g).all()):
+                return give_up("the normal equations are not finite")
+            try:
+                step = np.linalg.solve(A, -g)
+            except np.linalg.LinAlgError:
+                return give_up("the normal equations are singular")
+            if not np.isfinite(step).all():
+                return give_up("the step is not finite")
+            b = b + step
+            if np.max(np.abs(step)) < 1e-9:
+                break
     return b

@@ -35,9 +35,10 @@ from graph.factors import (
     unconstrained_intervals,
     usable_rows,
 )
-from ekf.runner import prepare_sequence
+from ekf.numerics import NumericalGuard
+from ekf.runner import finish_estimate, prepare_sequence
 from graph.marginals import isam2_marginals
-from graph.pose_conversions import L, X, estimation_error, to_pose3
+from graph.pose_conversions import L, X, estimation_error, named_error, to_pose3
 from graph.settings import SmootherSettings
 from graph.twist_smoothness import gap_prior, smoothness_sigma
 
@@ -177,7 +178,8 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
             isam.update(graph, values)
             poses[k] = isam.calculateEstimatePose3(X(k)).matrix()
         except RuntimeError as exc:
-            raise estimation_error(exc, f"adding frame {k} to iSAM2") from None
+            raise estimation_error(exc, f"adding frame {k} to iSAM2",
+                                   estimator="smoother-isam2") from None
         optimise_s += time.perf_counter() - tick
         # refresh the landmarks seen now (cheap: only this frame's)
         for j in tracks[in_graph[tracks]]:
@@ -192,7 +194,8 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     try:
         estimate = isam.calculateEstimate()
     except RuntimeError as exc:
-        raise estimation_error(exc, "computing the iSAM2 estimate") from None
+        raise estimation_error(exc, "computing the iSAM2 estimate",
+                               estimator="smoother-isam2") from None
     optimise_s += time.perf_counter() - tick
     tracks = np.flatnonzero(in_graph)
     return Isam2Result(
@@ -220,6 +223,19 @@ def run_isam2(
     ``progress(done, total)`` is called every 10 frames. Landmarks are indexed by the tracks of
     the cleaned sequence (``info["track_origin"]``).
     """
+    try:
+        return _run_isam2(seq, config, settings=settings, progress=progress)
+    except EstimationError as exc:  # shared parts name only what failed: add the estimator
+        raise named_error(exc, "smoother-isam2") from None
+
+
+def _run_isam2(
+    seq: Sequence,
+    config: FilterConfig = FilterConfig(),
+    *,
+    settings: SmootherSettings = SmootherSettings(),
+    progress: Callable | None = None,
+) -> Estimate:
     start = time.perf_counter()
     cleaned, cleaning = prepare_sequence(seq, config)
     T, M = cleaned.n_frames, cleaned.n_tracks
@@ -251,5 +267,7 @@ def run_isam2(
         "cleaning": cleaning,
         "settings": settings.to_dict(),
         "config": config.to_dict(),
+        "marginals_computed": bool(settings.compute_marginals),
     }
-    return est
+    return finish_estimate(est, NumericalGuard("smoother-isam2", cleaned.timestamps),
+                           check_cov=bool(settings.compute_marginals))

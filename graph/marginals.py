@@ -65,11 +65,27 @@ def schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_f
     matrix is not positive definite there. BLAS is pinned to one thread: the recursion works
     on small blocks, where multi-threaded OpenBLAS is many times slower (DESIGN.md)."""
     with threadpool_limits(limits=1, user_api="blas"):
-        return _schur_marginals(graph, values, n_frames, tracks, n_tracks)
+        pose_cov, landmark_cov = _schur_marginals(graph, values, n_frames, tracks, n_tracks)
+    return gtsam_cov_to_estimate(pose_cov), landmark_cov
+
+
+def pose_chain_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                           n_frames: int, tracks: np.ndarray, with_log_det: bool = False):
+    """The marginal covariances of the poses (T, 6, 6) and of consecutive poses' cross terms
+    ``Cov(x_k, x_{k+1})`` (T-1, 6, 6), both in GTSAM's rotation-first right perturbation (the
+    entries of the Takahashi recursion next to the diagonal; what EM needs for the expected
+    motion residuals, :mod:`graph.identification`). ``with_log_det``: also ``log det H`` of the
+    whole information matrix (the Laplace term of the likelihood)."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        pose_cov, _, pair_cov, log_det = _schur_marginals(
+            graph, values, n_frames, tracks, int(np.max(tracks, initial=-1)) + 1, pairs=True)
+    return (pose_cov, pair_cov, log_det) if with_log_det else (pose_cov, pair_cov)
 
 
 def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
-                    tracks: np.ndarray, n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+                    tracks: np.ndarray, n_tracks: int, pairs: bool = False):
+    """Pose (GTSAM convention unless converted by the caller) and landmark marginals; with
+    ``pairs`` also the cross-covariances of consecutive poses (GTSAM convention)."""
     tracks = np.sort(np.asarray(tracks, dtype=np.int64))
     H, n_l = _information(graph, values, n_frames, tracks)
     n_lm = len(tracks)
@@ -129,6 +145,7 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
     K = 6 * (wp + 1)
     window = np.zeros((K, K))  # Sigma over entries [6p, 6p + K)
     pose_cov = np.empty((n_frames, 6, 6))
+    pair_cov = np.zeros((max(n_frames - 1, 0), 6, 6))
     landmark_cov = np.full((n_tracks, 3, 3), np.nan)
     for i in by_first[n_frames]:  # landmarks with no pose factor
         landmark_cov[tracks[i]] = A_l[i]
@@ -151,6 +168,8 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
         new[:6, :6] = 0.5 * (S_jj + S_jj.T)
         window = new
         pose_cov[p] = new[:6, :6]
+        if pairs and p < n_frames - 1:
+            pair_cov[p] = new[:6, 6:12]
         for i in by_first[p]:
             a, z = H_lp_csr.indptr[3 * i], H_lp_csr.indptr[3 * i + 3]
             rows = np.repeat(np.arange(3), np.diff(H_lp_csr.indptr[3 * i:3 * i + 4]))
@@ -162,7 +181,11 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
             B = -A_l[i] @ H_row
             cov = A_l[i] + B @ new @ B.T
             landmark_cov[tracks[i]] = 0.5 * (cov + cov.T)
-    return gtsam_cov_to_estimate(pose_cov), landmark_cov
+    if pairs:  # log det H = log det H_ll + log det S (the Schur complement's Cholesky)
+        log_det = float(np.sum(np.linalg.slogdet(H_ll)[1])) if n_lm else 0.0
+        log_det += 2.0 * float(np.sum(np.log(Lb[0])))
+        return pose_cov, landmark_cov, pair_cov, log_det
+    return pose_cov, landmark_cov
 
 
 def batch_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
@@ -191,5 +214,6 @@ def isam2_marginals(isam: gtsam.ISAM2, n_frames: int, tracks: np.ndarray,
     try:
         values = isam.calculateEstimate()
     except RuntimeError as exc:
-        raise estimation_error(exc, "computing the iSAM2 estimate") from None
+        raise estimation_error(exc, "computing the iSAM2 estimate",
+                               estimator="smoother-isam2") from None
     return schur_marginals(isam.getFactorsUnsafe(), values, n_frames, tracks, n_tracks)

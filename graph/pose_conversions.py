@@ -26,6 +26,7 @@ __all__ = [
     "expmap_right_jacobian",
     "key_name",
     "estimation_error",
+    "named_error",
 ]
 
 #: What the key characters stand for, in error messages.
@@ -65,12 +66,14 @@ _SYMBOL_IN_MESSAGE = re.compile(r"Symbol:\s*([A-Za-z])(\d+)")
 _KEY_IN_MESSAGE = re.compile(r"variable\s+(\d{6,})")
 
 
-def estimation_error(exc: BaseException, stage: str, names: dict[str, str] | None = None) -> EstimationError:
+def estimation_error(exc: BaseException, stage: str, names: dict[str, str] | None = None,
+                     estimator: str = "smoother") -> EstimationError:
     """Turn an exception raised inside GTSAM into an :class:`EstimationError` naming the variable.
 
     GTSAM's messages carry the key as an integer and usually as ``(Symbol: l12)``; both are
     decoded to ``'landmark l12'``. ``names`` may map ``'l12'`` to extra context (e.g. the source
-    track). ``stage`` says what was being done ("optimising", "computing marginals").
+    track). ``stage`` says what was being done ("optimising", "computing marginals");
+    ``estimator`` starts the message (``"smoother"`` or ``"smoother-isam2"``).
     """
     text = str(exc)
     variable = None
@@ -88,7 +91,16 @@ def estimation_error(exc: BaseException, stage: str, names: dict[str, str] | Non
     else:
         reason = first_line
     if variable is None:
-        return EstimationError(f"smoother failed while {stage}: {reason}")
+        return EstimationError(f"{estimator} failed while {stage}: {reason}")
     short = variable.split()[-1]
     extra = f" ({names[short]})" if names and short in names else ""
-    return EstimationError(f"smoother failed while {stage} near {variable}{extra}: {reason}")
+    return EstimationError(f"{estimator} failed while {stage} near {variable}{extra}: {reason}")
+
+
+def named_error(exc: EstimationError, estimator: str) -> EstimationError:
+    """``exc`` with its message starting with the estimator's name (errors raised by shared
+    parts, e.g. the marginals or an EKF initialisation, name only what failed)."""
+    text = " ".join(str(exc).split("\n"))
+    if text.startswith(f"{estimator}:") or text.startswith(f"{estimator} "):
+        return exc if "\n" not in str(exc) else EstimationError(text)
+    return EstimationError(f"{estimator}: {text}")

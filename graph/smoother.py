@@ -56,9 +56,10 @@ from graph.factors import (
     usable_rows,
 )
 from graph.gyro_bias import BIAS_KEY, GyroBiasModel, corrected_deltas, estimate_bias
-from ekf.runner import prepare_sequence
+from ekf.numerics import NumericalGuard
+from ekf.runner import finish_estimate, prepare_sequence
 from graph.marginals import batch_marginals
-from graph.pose_conversions import estimation_error
+from graph.pose_conversions import estimation_error, named_error
 from graph.settings import INITIALISERS, SmootherSettings
 from graph.twist_smoothness import smoothness_sigma
 
@@ -71,13 +72,23 @@ Progress = Callable[[int, int], None]
 
 
 def ekf_trajectory(seq: Sequence, config: FilterConfig) -> tuple[np.ndarray | None, str]:
-    """Poses from the best EKF available (``ekf.estimators.ESTIMATORS``), or None."""
+    """Poses from the best EKF available (``ekf.estimators.ESTIMATORS``), or None.
+
+    An EKF that fails (EstimationError) is logged and the next one tried."""
     from ekf.estimators import ESTIMATORS
 
+    failed = []
     for name in EKF_INITIALISERS:
         if name in ESTIMATORS:
-            est = ESTIMATORS[name](seq, config, None)
+            try:
+                est = ESTIMATORS[name](seq, config, None)
+            except EstimationError as exc:
+                log.warning("smoother: cannot initialise from %s: %s", name, exc)
+                failed.append(name)
+                continue
             return np.asarray(est.poses, dtype=float), name
+    if failed:
+        return None, f"{', '.join(failed)} failed"
     return None, f"none of {EKF_INITIALISERS} registered"
 
 
@@ -99,12 +110,24 @@ def initial_trajectory(seq: Sequence, cleaned: Sequence, config: FilterConfig, i
         if poses is not None:
             return poses, source
         log.warning("smoother: no EKF to initialise from (%s); using dead reckoning", source)
-        return dead_reckoning(cleaned, config), "dead-reckoning (EKF unavailable)"
+        return _finite_dead_reckoning(cleaned, config), "dead-reckoning (EKF unavailable)"
     if init == "isam2":
         from graph.isam2 import isam2_solve
 
         return isam2_solve(cleaned, config, settings).poses, "isam2"
-    return dead_reckoning(cleaned, config), "dead-reckoning"
+    return _finite_dead_reckoning(cleaned, config), "dead-reckoning"
+
+
+def _finite_dead_reckoning(seq: Sequence, config: FilterConfig) -> np.ndarray:
+    """:func:`graph.factors.dead_reckoning`, or EstimationError at the first non-finite pose."""
+    with np.errstate(all="ignore"):
+        poses = dead_reckoning(seq, config)
+    bad = np.flatnonzero(~np.isfinite(poses.reshape(len(poses), -1)).all(axis=1))
+    if bad.size:
+        t = int(bad[0])
+        raise EstimationError(f"smoother: frame {t} (t={seq.timestamps[t]:.2f} s): "
+                              "dead-reckoned initial pose not finite")
+    return poses
 
 
 def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings) -> tuple[gtsam.Values, int, float, float]:
@@ -150,13 +173,31 @@ def run_smoother(
 ) -> Estimate:
     """Batch Levenberg-Marquardt smoother over the whole sequence (estimator ``smoother``).
 
-    ``init``: ``"ekf"`` (falls back to dead reckoning with a warning when no EKF is registered),
+    ``init``: ``"ekf"`` (falls back to dead reckoning with a warning when no EKF is registered
+    or every EKF fails with an EstimationError),
     ``"dead-reckoning"`` or ``"isam2"``; None takes ``settings.init`` (default ``"ekf"``).
     ``initial`` an EKF estimate to start from instead of running the EKF again (used only when
     the initialisation is ``"ekf"``). ``progress(done, total)`` is called after each stage (4 in all).
     Landmarks are indexed by the tracks of the cleaned sequence (``info["track_origin"]`` maps
-    them to the source file's columns).
+    them to the source file's columns). Every EstimationError it raises names ``smoother``.
     """
+    try:
+        return _run_smoother(seq, config, init=init, initial=initial, settings=settings,
+                             progress=progress)
+    except EstimationError as exc:  # shared parts name only what failed: add the estimator
+        raise named_error(exc, "smoother") from None
+
+
+def _run_smoother(
+    seq: Sequence,
+    config: FilterConfig = FilterConfig(),
+    *,
+    init: str | None = None,
+    initial: Estimate | None = None,
+    settings: SmootherSettings = SmootherSettings(),
+    progress: Progress | None = None,
+) -> Estimate:
+    """:func:`run_smoother`'s body (its errors not yet named)."""
     timing = {"build_s": 0.0, "initialise_s": 0.0, "optimise_s": 0.0, "marginals_s": 0.0}
     report = progress or (lambda done, total: None)
     start = time.perf_counter()
@@ -279,5 +320,7 @@ def run_smoother(
         "cleaning": cleaning,
         "settings": settings.to_dict(),
         "config": config.to_dict(),
+        "marginals_computed": bool(settings.compute_marginals),
     }
-    return est
+    return finish_estimate(est, NumericalGuard("smoother", cleaned.timestamps),
+                           check_cov=bool(settings.compute_marginals))

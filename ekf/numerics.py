@@ -1,0 +1,147 @@
+"""Numerical guards shared by the estimators: what to do when an update cannot be computed.
+
+On odd but finite input (a corrupt gyro sample, pixels shifted by 1e5 px, a 100 s time step)
+an innovation covariance can be singular or indefinite in floating point, or a gain can
+overflow. The filters then *reject that frame's update*: the state and covariance stay as
+they were before the update, the observations count in ``Estimate.n_rejected``, and the frame
+counts in ``Estimate.info["numerical_rejections"]`` (with the first
+:data:`MAX_RECORDED_FRAMES` frame indices in ``info["numerical_rejection_frames"]``) and is
+logged as a warning. A failure that cannot be rejected (the pose or its covariance not finite
+after a prediction) is an :class:`~ekf.errors.EstimationError` naming the estimator, the frame
+(index and time) and the quantity.
+
+The checks are cheap by construction (Cholesky factorisations that report failure instead of
+raising, ``isfinite`` on small blocks, one dot product for the size of a gain, the minimum of a
+posterior diagonal), so the hot loops stay as fast as before; the fallbacks (per-row loops)
+only run when the fast path fails.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from ekf.errors import EstimationError
+
+log = logging.getLogger(__name__)
+
+#: How many rejected frames are listed in ``info["numerical_rejection_frames"]`` (and logged).
+MAX_RECORDED_FRAMES = 20
+
+
+class UpdateRejected(Exception):
+    """Raised inside an update when it cannot be computed; the caller keeps its prior state.
+
+    Never escapes an estimator (the loop catches it and calls :meth:`NumericalGuard.reject`).
+    """
+
+
+class NumericalGuard:
+    """Counts the frames whose update was rejected for numerical reasons; raises the
+    estimator's :class:`EstimationError` for failures that cannot be rejected."""
+
+    def __init__(self, estimator: str, timestamps: np.ndarray):
+        self.estimator = estimator
+        self.timestamps = np.asarray(timestamps, dtype=float)
+        self.n_frames = 0
+        self.frames: list[int] = []
+        self._last = -1
+
+    def where(self, t: int) -> str:
+        time = self.timestamps[t] if 0 <= t < self.timestamps.size else float("nan")
+        return f"frame {int(t)} (t={time:.2f} s)"
+
+    def reject(self, t: int, what: str, n_obs: int | None = None) -> None:
+        """Record that (part of) frame ``t``'s update was rejected because of ``what``."""
+        if t == self._last:
+            return
+        self._last = int(t)
+        self.n_frames += 1
+        if len(self.frames) < MAX_RECORDED_FRAMES:
+            self.frames.append(int(t))
+            obs = "" if n_obs is None else f" ({n_obs} observations)"
+            log.warning("%s: %s: update rejected%s: %s", self.estimator, self.where(t), obs, what)
+        elif self.n_frames == MAX_RECORDED_FRAMES + 1:
+            log.warning("%s: more updates rejected for numerical reasons (not logged)", self.estimator)
+
+    def error(self, t: int, what: str) -> EstimationError:
+        """The one-line error for a failure at frame ``t``: ``"<estimator>: frame t (t=.. s): what"``."""
+        return EstimationError(f"{self.estimator}: {self.where(t)}: {what}")
+
+    def check_state(self, t: int, pose: np.ndarray, cov: np.ndarray,
+                    stage: str = "after prediction") -> None:
+        """Raise :meth:`error` if the pose or its covariance (small arrays) is not finite."""
+        if np.isfinite(pose).all() and np.isfinite(cov).all():
+            return
+        if not np.isfinite(pose).all():
+            raise self.error(t, f"pose not finite {stage}")
+        raise self.error(t, f"pose covariance not finite {stage}")
+
+    def info(self) -> dict:
+        return {"numerical_rejections": int(self.n_frames), "numerical_rejection_frames": list(self.frames)}
+
+
+def check_finite_trajectory(guard: NumericalGuard, poses: np.ndarray, pose_cov: np.ndarray,
+                            quantity: str = "") -> None:
+    """EstimationError naming the first frame whose pose or pose covariance is not finite."""
+    T = poses.shape[0]
+    bad_pose = ~np.isfinite(poses.reshape(T, -1)).all(axis=1)
+    bad_cov = ~np.isfinite(pose_cov.reshape(T, -1)).all(axis=1)
+    bad = bad_pose | bad_cov
+    if bad.any():
+        t = int(np.flatnonzero(bad)[0])
+        what = "pose" if bad_pose[t] else "pose covariance"
+        raise guard.error(t, f"{what} not finite{quantity}")
+
+
+def batched_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(A, B)`` over a batch; rows whose system is singular come back NaN
+    instead of the whole batch raising (the per-row fallback only runs when one is singular)."""
+    try:
+        return np.linalg.solve(A, B)
+    except np.linalg.LinAlgError:
+        pass
+    out = np.full(np.broadcast_shapes(A.shape[:-2], B.shape[:-2]) + B.shape[-2:], np.nan)
+    A = np.broadcast_to(A, out.shape[:-2] + A.shape[-2:])
+    B = np.broadcast_to(B, out.shape)
+    for i in np.ndindex(out.shape[:-2]):
+        try:
+            out[i] = np.linalg.solve(A[i], B[i])
+        except np.linalg.LinAlgError:
+            pass
+    return out
+
+
+def batched_inv(A: np.ndarray) -> np.ndarray:
+    """``np.linalg.inv`` over a batch; singular matrices come back NaN (see :func:`batched_solve`)."""
+    try:
+        return np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        pass
+    out = np.full(A.shape, np.nan)
+    for i in np.ndindex(A.shape[:-2]):
+        try:
+            out[i] = np.linalg.inv(A[i])
+        except np.linalg.LinAlgError:
+            pass
+    return out
+
+
+def finite_rows(x: np.ndarray) -> np.ndarray:
+    """Boolean (n,): every entry of ``x[i]`` is finite."""
+    return np.isfinite(x.reshape(x.shape[0], -1)).all(axis=1)
+
+
+def finite_norm2(x: np.ndarray) -> bool:
+    """``|x|^2`` is finite (so neither ``x`` nor ``x^T x`` holds NaN or overflows): one dot
+    product, the cheapest complete check (a False may also mean huge but finite entries)."""
+    v = x.ravel(order="K")
+    return math.isfinite(np.dot(v, v))
+
+
+def all_finite(*arrays: np.ndarray) -> bool:
+    """Every entry of every array is finite (fast path: :func:`finite_norm2` of each, so a
+    False may also mean entries beyond 1e154; callers then take the per-row path)."""
+    return all(finite_norm2(a) for a in arrays)
