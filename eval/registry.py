@@ -42,7 +42,19 @@ class EstimatorFn(Protocol):
 
 
 def get_estimator(name: str) -> Callable:
-    """The callable running estimator ``name``; unknown name -> :class:`InputError`."""
+    """The callable running estimator ``name``; unknown name -> :class:`InputError`. Its
+    Estimate is checked (:meth:`ekf.estimate.Estimate.check_finite`): no NaN reaches a result."""
+    run = _lookup(name)
+
+    def checked(seq, config, progress=None, initial=None, smoother=None):
+        est = run(seq, config, progress=progress, initial=initial, smoother=smoother)
+        est.check_finite()
+        return est
+
+    return checked
+
+
+def _lookup(name: str) -> Callable:
     if name in _EKF_NAMES:
         from ekf.estimators import ESTIMATORS
 
