@@ -20,7 +20,10 @@ wherever it comes from (the constructor, ``replace``, a TOML file, a flag):
 - probabilities lie in the open interval (0, 1); ``gate_probability`` may also be None, in a
   file or a flag written ``"none"`` or ``"off"``;
 - integer counts lie in [1, bound] (``blas_threads`` <= 1024);
-- choices (strings) are one of the listed values, bools are bools.
+- choices (strings) are one of the listed values, bools are bools;
+- "float3" settings (``velocity_sigma``, ``gyro_sigma``) are one number (every axis) or an
+  array of three (x, y, z of the IMU body frame), each number checked as above; one number is
+  stored as a float, three as a tuple of three floats (a flag writes them ``0.5,0.4,0.3``).
 
 Errors are :class:`ekf.errors.InputError` naming the key and, for a file, the file and table
 (``s.toml [filter]: setting 'pixel_sigma' must be ..., got -1``); flags are named by
@@ -85,8 +88,9 @@ def _fmt(x: float) -> str:
 
 @dataclass(frozen=True)
 class Rule:
-    """What one setting may hold: ``kind`` "float", "int", "bool" or "choice"; numbers lie in
-    [lo, hi] (``lo_open``: (lo, hi]; ``hi_open``: [lo, hi)); ``optional``: None is allowed."""
+    """What one setting may hold: ``kind`` "float", "int", "bool", "choice" or "float3" (one
+    number, or an array of three, each a "float" of the same bounds); numbers lie in [lo, hi]
+    (``lo_open``: (lo, hi]; ``hi_open``: [lo, hi)); ``optional``: None is allowed."""
 
     kind: str
     lo: float | None = None
@@ -98,7 +102,10 @@ class Rule:
 
     def describe(self) -> str:
         """What the setting must be, as the end of "must be ..."."""
-        if self.kind == "bool":
+        if self.kind == "float3":
+            one = dataclasses.replace(self, kind="float", optional=False).describe()
+            text = f"{one}, or an array of 3 such numbers (x, y, z)"
+        elif self.kind == "bool":
             text = "true or false"
         elif self.kind == "choice":
             text = "one of " + ", ".join(repr(c) for c in self.choices)
@@ -125,7 +132,22 @@ class Rule:
         if self.optional and (value is None or (isinstance(value, str)
                                                 and value.strip().lower() in NO_GATE_WORDS)):
             return None
-        if self.kind == "bool":
+        if self.kind == "float3":
+            one = dataclasses.replace(self, kind="float", optional=False)
+            if isinstance(value, (list, tuple, np.ndarray)):
+                items = list(value) if not isinstance(value, np.ndarray) or value.ndim == 1 \
+                    else []
+                if len(items) == 3:
+                    try:
+                        return tuple(one.check(x) for x in items)
+                    except ValueError:
+                        pass
+            else:
+                try:
+                    return one.check(value)
+                except ValueError:
+                    pass
+        elif self.kind == "bool":
             if isinstance(value, (bool, np.bool_)):
                 return bool(value)
         elif self.kind == "choice":
@@ -159,11 +181,21 @@ def sigma(hi: float) -> Rule:
     return Rule("float", SIGMA_MIN, hi)
 
 
+def sigma3(hi: float) -> Rule:
+    """Standard deviations per axis: one number (every axis) or three (x, y, z)."""
+    return Rule("float3", SIGMA_MIN, hi)
+
+
+def per_axis(value: float | tuple) -> np.ndarray:
+    """A "float3" setting as three numbers (3,): one number repeated, or the three given."""
+    return np.broadcast_to(np.asarray(value, dtype=float), (3,)).copy()
+
+
 #: The rule of every FilterConfig field, in field order (units and bounds in the comments).
 FILTER_RULES: dict[str, Rule] = {
     "pixel_sigma": sigma(1e4),  # px; images are ~1242 px wide
-    "velocity_sigma": sigma(1e3),  # m/s
-    "gyro_sigma": sigma(1e3),  # rad/s
+    "velocity_sigma": sigma3(1e3),  # m/s, one or per axis (x, y, z)
+    "gyro_sigma": sigma3(1e3),  # rad/s, one or per axis (x, y, z)
     "initial_position_sigma": sigma(1e6),  # m
     "initial_rotation_sigma": sigma(1e3),  # rad
     "gate_probability": Rule("float", 0.0, 1.0, lo_open=True, hi_open=True, optional=True),
@@ -215,10 +247,11 @@ class FilterConfig:
 
     #: Stereo pixel noise standard deviation (px), each of uL, vL, uR, vR.
     pixel_sigma: float = 1.0
-    #: Linear-velocity noise standard deviation per sample (m/s).
-    velocity_sigma: float = 0.5
-    #: Angular-velocity noise standard deviation per sample (rad/s).
-    gyro_sigma: float = 0.05
+    #: Linear-velocity noise standard deviation per sample (m/s): one number for every axis,
+    #: or three (x, y, z of the IMU body frame).
+    velocity_sigma: float | tuple[float, float, float] = 0.5
+    #: Angular-velocity noise standard deviation per sample (rad/s): one number or three.
+    gyro_sigma: float | tuple[float, float, float] = 0.05
     #: Initial pose standard deviations (m, rad); world = IMU at step 0, so near zero.
     initial_position_sigma: float = 1e-3
     initial_rotation_sigma: float = 1e-4
@@ -267,9 +300,20 @@ class FilterConfig:
         return self.pixel_sigma**2 * np.eye(4)
 
     @property
+    def velocity_sigmas(self) -> np.ndarray:
+        """Linear-velocity sigma per axis (3,), m/s."""
+        return per_axis(self.velocity_sigma)
+
+    @property
+    def gyro_sigmas(self) -> np.ndarray:
+        """Angular-velocity sigma per axis (3,), rad/s."""
+        return per_axis(self.gyro_sigma)
+
+    @property
     def velocity_cov(self) -> np.ndarray:
-        """Twist noise covariance W (6x6), translation first, in (m/s)^2 and (rad/s)^2."""
-        return np.diag([self.velocity_sigma**2] * 3 + [self.gyro_sigma**2] * 3)
+        """Twist noise covariance W (6x6), translation first, in (m/s)^2 and (rad/s)^2:
+        diag(vx^2, vy^2, vz^2, gx^2, gy^2, gz^2)."""
+        return np.diag(np.concatenate([self.velocity_sigmas, self.gyro_sigmas]) ** 2)
 
     @property
     def initial_pose_cov(self) -> np.ndarray:
@@ -298,7 +342,9 @@ class FilterConfig:
         return cls(**check_mapping(FILTER_RULES, data, source, "filter settings"))
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """Every setting, JSON-able (three per-axis numbers as a list)."""
+        return {k: list(v) if isinstance(v, tuple) else v
+                for k, v in dataclasses.asdict(self).items()}
 
 
 assert list(FILTER_RULES) == [f.name for f in fields(FilterConfig)]
@@ -306,11 +352,12 @@ assert list(FILTER_RULES) == [f.name for f in fields(FilterConfig)]
 
 # --- settings files ----------------------------------------------------------------------------
 
-#: The tables of a settings file: ``[filter]`` (FilterConfig) and ``[smoother]``
-#: (graph.settings.SmootherSettings).
-SETTINGS_TABLES = ("filter", "smoother")
+#: The tables of a settings file: ``[filter]`` (FilterConfig), ``[smoother]``
+#: (graph.settings.SmootherSettings), ``[model]`` and ``[file]`` (ekf.model.Model: the model of
+#: a drive and the file's own values beside it).
+SETTINGS_TABLES = ("filter", "smoother", "model", "file")
 #: Kept for callers of the old name: tables of a settings file that are not FilterConfig's.
-OTHER_TABLES = ("smoother",)
+OTHER_TABLES = ("smoother", "model", "file")
 #: A settings file larger than this is refused before it is parsed (it is not one).
 MAX_SETTINGS_BYTES = 1 << 20
 
@@ -359,7 +406,8 @@ def read_toml(path: str | Path) -> dict:
 
 def settings_tables(path: str | Path) -> dict[str, tuple[dict, str]]:
     """The tables of settings file ``path``: {"filter": (table, source), "smoother": (table,
-    source)}, ``source`` naming the file and table for error messages. Filter settings are in a
+    source), "model": (table or None, source), "file": (table or None, source)}, ``source``
+    naming the file and table for error messages. Filter settings are in a
     ``[filter]`` table or, without one, at the top level; anything else at the top level (an
     unknown table, or keys beside a ``[filter]`` table) is an InputError listing what is valid.
     """
@@ -388,4 +436,6 @@ def settings_tables(path: str | Path) -> dict[str, tuple[dict, str]]:
     return {
         "filter": (filter_table, filter_source),
         "smoother": (data.get("smoother", {}), f"{shown} [smoother]"),
+        "model": (data.get("model"), f"{shown} [model]"),
+        "file": (data.get("file"), f"{shown} [file]"),
     }

@@ -25,7 +25,6 @@ with the smoother's estimate on the same sequence (null for the smoothers themse
 from __future__ import annotations
 
 import concurrent.futures as cf
-import concurrent.futures.process
 import contextlib
 import dataclasses
 import logging
@@ -162,6 +161,21 @@ def collect_sequences(paths: list[str], frames: int | None = None, seed: int = 0
         if n:
             s.name = f"{s.name}-{n}"
     return seqs
+
+
+def apply_model_to(sequences: list[BenchSequence], model) -> list[BenchSequence]:
+    """Each drive under ``model`` (ekf.model.Model): its extrinsic and gyro bias applied to the
+    data, and its ground truth converted with the model's extrinsic (a simulated drive's truth
+    is already in the IMU frame)."""
+    from ekf.model import model_sequence
+
+    out = []
+    for bs in sequences:
+        gt = bs.gt
+        if gt is not None and hasattr(gt, "with_extrinsic"):
+            gt = gt.with_extrinsic(model.cam_T_imu, source="model")
+        out.append(dataclasses.replace(bs, sequence=model_sequence(bs.sequence, model), gt=gt))
+    return out
 
 
 # --- jobs ------------------------------------------------------------------------------------

@@ -10,6 +10,13 @@ The IMU poses, in the frame of the IMU at frame 0 (the world frame of every esti
 
     T_imu(k) = inv(cam_T_imu) @ P(k) @ cam_T_imu.
 
+The extrinsic is the data file's unless another is given (``cam_T_imu`` of
+:func:`load_ground_truth` / :func:`find_ground_truth`, or :meth:`GroundTruth.with_extrinsic`,
+e.g. an identified model's: ekf.model). A wrong extrinsic corrupts the IMU ground truth as much
+as the estimate (the shared data's README), so every GroundTruth records the extrinsic it was
+converted with (``cam_T_imu``) and where that came from (``extrinsic_source``: "file" or what
+the caller names, e.g. "model").
+
 For ``DIR/NAME.npz`` the ground truth is looked up at ``DIR/groundtruth/NAME.txt`` unless a
 file is given explicitly (``--gt FILE``). Only a path with nothing there means "no ground
 truth": a folder, a FIFO or device, a broken link, an unreadable file, a file that is not
@@ -21,7 +28,7 @@ from __future__ import annotations
 
 import os
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -42,12 +49,28 @@ MAX_TRANSLATION = 1e7
 @dataclass(frozen=True)
 class GroundTruth:
     """``poses[i]`` is world_T_imu at frame ``frames[i]`` (world = IMU at frame 0);
-    ``times`` (n,) the file's time column where it has one, else None."""
+    ``times`` (n,) the file's time column where it has one, else None; ``camera_poses``
+    (n, 4, 4) the file's left-camera poses (orthonormalised) they were converted from;
+    ``cam_T_imu`` the extrinsic of that conversion and ``extrinsic_source`` where it came from
+    ("file": the data file's calibration)."""
 
     frames: np.ndarray
     poses: np.ndarray
     source: str
     times: np.ndarray | None = None
+    camera_poses: np.ndarray | None = None
+    cam_T_imu: np.ndarray | None = None
+    extrinsic_source: str = "file"
+
+    def with_extrinsic(self, cam_T_imu: np.ndarray, source: str = "model") -> "GroundTruth":
+        """The same ground truth converted to IMU poses with another extrinsic ``cam_T_imu``
+        (4x4), ``source`` naming it (recorded as ``extrinsic_source``)."""
+        if self.camera_poses is None:
+            raise InputError(f"{self.source}: ground truth without its camera poses cannot be "
+                             "converted with another extrinsic")
+        cam_T_imu = np.array(cam_T_imu, dtype=float)
+        return replace(self, poses=_imu_poses(self.source, self.camera_poses, cam_T_imu),
+                       cam_T_imu=cam_T_imu, extrinsic_source=str(source))
 
     @property
     def n(self) -> int:
@@ -164,9 +187,12 @@ def imu_to_camera_poses(T_imu: np.ndarray, cam_T_imu: np.ndarray) -> np.ndarray:
 
 
 def load_ground_truth(
-    path: str | os.PathLike, calibration: Calibration, n_frames: int
+    path: str | os.PathLike, calibration: Calibration, n_frames: int,
+    cam_T_imu: np.ndarray | None = None, extrinsic_source: str = "model",
 ) -> GroundTruth:
-    """Read a KITTI pose file for a drive of ``n_frames`` frames and convert it to IMU poses.
+    """Read a KITTI pose file for a drive of ``n_frames`` frames and convert it to IMU poses
+    with ``calibration.cam_T_imu`` (extrinsic source "file") or, when given, ``cam_T_imu``
+    (extrinsic source ``extrinsic_source``).
 
     Line k is frame k; a file with more pose lines than the drive has frames is an error.
     """
@@ -177,8 +203,23 @@ def load_ground_truth(
             f"{path}: line {n_frames + 1}: {P.shape[0]} pose lines for a drive of "
             f"{n_frames} frames"
         )
+    if cam_T_imu is None:
+        extrinsic = np.array(calibration.cam_T_imu, dtype=float)
+        extrinsic_source = "file"
+    else:
+        extrinsic = np.array(cam_T_imu, dtype=float)
+    P = orthonormalise(P)
+    return GroundTruth(
+        frames=np.arange(P.shape[0], dtype=np.int64), poses=_imu_poses(path, P, extrinsic),
+        source=str(path), times=times, camera_poses=P, cam_T_imu=extrinsic,
+        extrinsic_source=str(extrinsic_source),
+    )
+
+
+def _imu_poses(path, P: np.ndarray, cam_T_imu: np.ndarray) -> np.ndarray:
+    """IMU poses (n, 4, 4) in the IMU frame of frame 0 from camera poses P."""
     with np.errstate(over="ignore", invalid="ignore"):
-        poses = camera_to_imu_poses(orthonormalise(P), calibration.cam_T_imu)
+        poses = camera_to_imu_poses(P, cam_T_imu)
         # World = IMU at frame 0 (a no-op for KITTI files, whose first pose is the identity).
         poses = np.linalg.inv(poses[0]) @ poses
     bad = ~np.all(np.isfinite(poses), axis=(1, 2))
@@ -186,9 +227,7 @@ def load_ground_truth(
         k = int(np.argmax(bad))
         raise InputError(f"{path}: pose {k} (frame {k}): its translation is too large to "
                          "convert to an IMU pose (overflow)")
-    return GroundTruth(
-        frames=np.arange(P.shape[0], dtype=np.int64), poses=poses, source=str(path), times=times
-    )
+    return poses
 
 
 def ground_truth_path(npz_path: str | os.PathLike) -> Path:
@@ -202,12 +241,16 @@ def find_ground_truth(
     override: str | os.PathLike | None = None,
     calibration: Calibration | None = None,
     n_frames: int | None = None,
+    cam_T_imu: np.ndarray | None = None,
+    extrinsic_source: str = "model",
 ) -> GroundTruth | None:
     """The ground truth of a drive: ``override`` if given (it must exist), else
     ``DIR/groundtruth/NAME.txt`` if anything is there (it must be a readable pose file: a
     folder or an unreadable file there is an error, not "no ground truth"), else None.
 
-    Calibration and frame count are read from the .npz unless given.
+    Calibration and frame count are read from the .npz unless given. The IMU poses are
+    converted with the file's extrinsic, or with ``cam_T_imu`` when given (recorded with
+    ``extrinsic_source``).
     """
     path = Path(override) if override is not None else ground_truth_path(npz_path)
     if override is None:
@@ -224,7 +267,8 @@ def find_ground_truth(
         from eval.loader import read_calibration
 
         calibration, n_frames = read_calibration(npz_path)
-    return load_ground_truth(path, calibration, n_frames)
+    return load_ground_truth(path, calibration, n_frames, cam_T_imu=cam_T_imu,
+                             extrinsic_source=extrinsic_source)
 
 
 def write_kitti_poses(

@@ -21,10 +21,22 @@ so a filter using ``FilterConfig(velocity_pairing="mean")`` integrates the noise
 velocities into the true poses exactly (to rounding). The world frame is the IMU frame at
 frame 0 (pitch and yaw are zero there, so world z is up).
 
+Other pairings (``velocity_pairing``, for tests of identifying it). The trajectory is the same;
+only what a velocity sample holds changes. With the interval twist ``w_k = (u_k + u_{k+1}) / 2``
+(the true constant twist over ``[t_k, t_{k+1}]``):
+
+* ``"mean"`` (default): sample k is ``u_k``, so the mean of samples k and k+1 is ``w_k``;
+* ``"current"``: sample k is ``w_k``, the twist of the interval it starts;
+* ``"next"``: sample k is ``w_{k-1}``, the twist of the interval it ends (sample 0: ``u_0``).
+
+A filter with the same pairing integrates the noise-free samples into the true poses exactly.
+``true_velocities`` are the noise-free samples.
+
 Measurements
 ------------
-* Velocities: ``u_k + N(0, diag(velocity_sigma^2 I3, gyro_sigma^2 I3))`` plus a constant gyro
-  bias on the angular part.
+* Velocities: the samples above ``+ N(0, diag(velocity_sigma^2, gyro_sigma^2))`` (one sigma
+  for every axis, or three: x, y, z of the IMU body frame) plus a constant gyro bias on the
+  angular part.
 * Landmarks stand on both sides of the path (lateral offset 4-20 m, 0-10 m above the road,
   i.e. about -1.7..8.4 m relative to the camera), plus a share of far points (lateral 20-50 m,
   0-20 m above the road) and a share on the road surface (lateral 1-10 m, 0-0.15 m). The road
@@ -39,10 +51,21 @@ Measurements
   ``N(0, pixel_sigma^2)`` on each of uL, vL, uR, vR; an observation whose noisy disparity falls
   below ``min_disparity`` is dropped and ends its track.
 
+The file's extrinsic (``file_extrinsic_fault``, ``file_extrinsic_offset``). The data is made
+with the true ``cam_T_imu`` (KITTI_CAM_T_IMU), and the written ground truth is the left
+camera's poses with that true extrinsic, as in the real data; the ``cam_T_imu`` written into
+the file may differ from it, like the shared files' (their README): fault "kitti" stores the
+translation of imu_T_cam (``-R^T t``) where cam_T_imu's belongs; an offset ``[dtx, dty, dtz,
+drx, dry, drz]`` (m, rad) then adds ``dt`` to the translation and turns the rotation by
+``so3_exp(dr)`` on the left (``R_file = so3_exp(dr) @ R``). ``SimResult.sequence`` carries the
+file's extrinsic (what the loader reads), ``SimResult.true_cam_T_imu`` the true one, and
+``SimResult.model`` (written as ``NAME_model.toml``) the true model of the drive.
+
 ``noise_free=True`` zeroes every noise (pixels, velocities, gyro bias). The random streams of
 the trajectory, the landmarks, the tracks, the velocity noise and the pixel noise are separate
 children of one ``SeedSequence(seed)``, so for one seed the noise-free drive is the ground truth
-of the noisy one.
+of the noisy one. No option draws from a new stream, and with the defaults every drive is the
+same, to the byte, as before the options existed.
 """
 
 from __future__ import annotations
@@ -57,7 +80,7 @@ from scipy.interpolate import PchipInterpolator
 
 from ekf.camera import project
 from ekf.errors import InputError
-from ekf.geometry import homogeneous, se3_exp, se3_inv
+from ekf.geometry import homogeneous, se3_exp, se3_inv, so3_exp
 from ekf.sequence import Calibration, Observations, Sequence
 from eval.export import FLOAT_FORMAT, atomic_write, save_npz_reproducible
 
@@ -100,6 +123,13 @@ _SIM_UPPER_BOUNDS = {
     "landmark_density": 1000.0, "min_depth": 1e4, "max_depth": 1e4, "mean_track_length": 1e4,
     "knot_spacing_s": 1e4,
 }
+#: How a velocity sample relates to the motion (module docstring).
+SIM_VELOCITY_PAIRINGS = ("current", "next", "mean")
+#: Faults of the extrinsic written into the file: "none" (the true one) or "kitti" (the
+#: translation of imu_T_cam stored where cam_T_imu's belongs, as in the shared data).
+FILE_EXTRINSIC_FAULTS = ("none", "kitti")
+#: Largest file-extrinsic offset: translation (m) and rotation (rad) components.
+_MAX_OFFSET_M, _MAX_OFFSET_RAD = 100.0, 3.0
 
 
 @dataclass(frozen=True)
@@ -119,9 +149,10 @@ class SimConfig:
     max_pitch_deg: float = 3.0
     #: Spacing (s) of the random knots of speed and yaw rate (pitch: twice this).
     knot_spacing_s: float = 4.0
-    # Velocity noise, per sample (the shared data: about 0.5 m/s and 0.05 rad/s).
-    velocity_sigma: float = 0.5
-    gyro_sigma: float = 0.05
+    # Velocity noise, per sample (the shared data: about 0.5 m/s and 0.05 rad/s): one number
+    # for every axis, or three (x, y, z of the IMU body frame).
+    velocity_sigma: float | tuple[float, float, float] = 0.5
+    gyro_sigma: float | tuple[float, float, float] = 0.05
     #: Constant gyro bias (rad/s), one value per axis.
     gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # Stereo.
@@ -145,6 +176,12 @@ class SimConfig:
     #: After track cleaning each event leaves one interval without visual constraint.
     repeat_event_rate: float = 0.0
     noise_free: bool = False
+    #: Which velocity sample covers [k, k+1] in the data made (SIM_VELOCITY_PAIRINGS).
+    velocity_pairing: str = "mean"
+    #: The extrinsic written into the file: FILE_EXTRINSIC_FAULTS, then the offset
+    #: [dtx, dty, dtz, drx, dry, drz] (m, rad) added (module docstring).
+    file_extrinsic_fault: str = "none"
+    file_extrinsic_offset: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         if not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2**63:
@@ -153,9 +190,20 @@ class SimConfig:
             raise InputError(
                 f"simulation: n_frames must be between 2 and {MAX_SIM_FRAMES}, got {self.n_frames}"
             )
+        for key in ("velocity_sigma", "gyro_sigma"):
+            value = getattr(self, key)
+            if isinstance(value, (list, tuple, np.ndarray)):
+                try:
+                    arr = np.asarray(value, dtype=float)
+                except (TypeError, ValueError):
+                    arr = np.zeros(0)
+                if arr.shape != (3,):
+                    raise InputError(f"simulation: {key} must be one number or three (x, y, z), "
+                                     f"got {value!r}")
+                object.__setattr__(self, key, tuple(float(x) for x in arr))
         for key, top in _SIM_UPPER_BOUNDS.items():
             value = getattr(self, key)
-            if np.isfinite(value) and value > top:
+            if np.any(np.isfinite(value) & (np.asarray(value) > top)):
                 raise InputError(f"simulation: {key} must be at most {top:g}, got {value!r}")
         positive = ("rate_hz", "speed_min", "landmark_density", "mean_track_length", "max_depth")
         for key in positive:
@@ -165,7 +213,7 @@ class SimConfig:
         nonneg = ("velocity_sigma", "gyro_sigma", "pixel_sigma", "max_yaw_rate", "max_pitch_deg")
         for key in nonneg:
             value = getattr(self, key)
-            if not np.isfinite(value) or value < 0:
+            if not np.all(np.isfinite(value)) or np.any(np.asarray(value) < 0):
                 raise InputError(f"simulation: {key} must be >= 0, got {value!r}")
         if self.speed_max < self.speed_min:
             raise InputError(
@@ -195,6 +243,25 @@ class SimConfig:
                 f"simulation: gyro_bias must be 3 numbers within +-10 rad/s, got {self.gyro_bias!r}"
             )
         object.__setattr__(self, "gyro_bias", tuple(float(x) for x in bias))
+        if self.velocity_pairing not in SIM_VELOCITY_PAIRINGS:
+            raise InputError(f"simulation: velocity_pairing must be one of "
+                             f"{', '.join(SIM_VELOCITY_PAIRINGS)}, got {self.velocity_pairing!r}")
+        if self.file_extrinsic_fault not in FILE_EXTRINSIC_FAULTS:
+            raise InputError(f"simulation: file_extrinsic_fault must be one of "
+                             f"{', '.join(FILE_EXTRINSIC_FAULTS)}, got {self.file_extrinsic_fault!r}")
+        try:
+            offset = np.asarray(self.file_extrinsic_offset, dtype=float)
+        except (TypeError, ValueError):
+            offset = np.zeros(0)
+        if (offset.shape != (6,) or not np.all(np.isfinite(offset))
+                or np.any(np.abs(offset[:3]) > _MAX_OFFSET_M)
+                or np.any(np.abs(offset[3:]) > _MAX_OFFSET_RAD)):
+            raise InputError(
+                "simulation: file_extrinsic_offset must be 6 numbers, translation within "
+                f"+-{_MAX_OFFSET_M:g} m then rotation within +-{_MAX_OFFSET_RAD:g} rad, got "
+                f"{self.file_extrinsic_offset!r}"
+            )
+        object.__setattr__(self, "file_extrinsic_offset", tuple(float(x) for x in offset))
 
 
 #: The benchmark's default simulated drive (seed 0, 600 frames).
@@ -211,7 +278,9 @@ class SimResult:
     ``true_velocities`` (T, 6) noise-free instantaneous body twists ``[v; w]`` at each sample;
     ``track_landmark`` (n_tracks,) which landmark each track observes;
     ``landmark_points`` (n_landmarks, 3) every landmark placed;
-    ``config`` the settings that made it.
+    ``config`` the settings that made it;
+    ``true_cam_T_imu`` the extrinsic the data was made with (``sequence.calibration`` holds the
+    file's, which differs with a file-extrinsic fault); :attr:`model` the true model.
     """
 
     sequence: Sequence
@@ -221,6 +290,62 @@ class SimResult:
     track_landmark: np.ndarray
     landmark_points: np.ndarray
     config: SimConfig = field(default_factory=SimConfig)
+    true_cam_T_imu: np.ndarray | None = None
+
+    @property
+    def cam_T_imu(self) -> np.ndarray:
+        """The true extrinsic (the file's when none was recorded)."""
+        if self.true_cam_T_imu is not None:
+            return self.true_cam_T_imu
+        return self.sequence.calibration.cam_T_imu
+
+    @property
+    def model(self):
+        """The true model of the drive (ekf.model.Model): noise sigmas per axis, pixel sigma,
+        gyro bias (None when zero), the pairing the samples were made with, the true
+        extrinsic; the file's extrinsic under ``file``. Sigmas of a noise-free drive are
+        SIGMA_MIN (a model's smallest)."""
+        return true_model(self)
+
+
+def file_extrinsic(config: SimConfig, true_cam_T_imu: np.ndarray) -> np.ndarray:
+    """The ``cam_T_imu`` written into the file for ``config`` (module docstring)."""
+    out = np.array(true_cam_T_imu, dtype=float)
+    if config.file_extrinsic_fault == "kitti":
+        out[:3, 3] = se3_inv(true_cam_T_imu)[:3, 3]
+    offset = np.asarray(config.file_extrinsic_offset, dtype=float)
+    if np.any(offset[3:] != 0.0):
+        out[:3, :3] = so3_exp(offset[3:]) @ out[:3, :3]
+    if np.any(offset[:3] != 0.0):
+        out[:3, 3] = out[:3, 3] + offset[:3]
+    return out
+
+
+def true_model(result: SimResult):
+    """The true model of a simulated drive (see :attr:`SimResult.model`)."""
+    from ekf.config import SIGMA_MIN, per_axis
+    from ekf.model import Model
+
+    config = result.config
+
+    def sig(value) -> tuple:
+        value = 0.0 if config.noise_free else value
+        return tuple(max(float(x), SIGMA_MIN) for x in per_axis(value))
+
+    bias = None
+    if not config.noise_free and any(b != 0.0 for b in config.gyro_bias):
+        bias = tuple(config.gyro_bias)
+    seed_text = f"seed {config.seed}, {config.n_frames} frames"
+    return Model(
+        velocity_sigma=sig(config.velocity_sigma),
+        gyro_sigma=sig(config.gyro_sigma),
+        pixel_sigma=sig(config.pixel_sigma)[0],
+        velocity_pairing=config.velocity_pairing,
+        cam_T_imu=result.cam_T_imu,
+        gyro_bias=bias,
+        source=f"vislam simulate: the true model of {result.sequence.name} ({seed_text})",
+        file={"cam_T_imu": result.sequence.calibration.cam_T_imu},
+    )
 
 
 def default_simulation(seed: int = 0) -> SimResult:
@@ -425,17 +550,21 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
     points, point_arc = _place_landmarks(config, rng_landmarks, poses_all, road_z)
 
     T = config.n_frames
-    poses, u_true, timestamps = poses_all[:T], u_all[:T], t_all[:T]
-    calib = Calibration(K=KITTI_K.copy(), baseline=KITTI_BASELINE, cam_T_imu=KITTI_CAM_T_IMU.copy())
+    poses, timestamps = poses_all[:T], t_all[:T]
+    u_true = _velocity_samples(u_all, T, config.velocity_pairing)
+    true_cam_T_imu = KITTI_CAM_T_IMU.copy()
+    calib = Calibration(K=KITTI_K.copy(), baseline=KITTI_BASELINE, cam_T_imu=true_cam_T_imu)
     repeat_frames = (rng_events.random(T) < config.repeat_event_rate) & (np.arange(T) >= 2)
     frame, track, z, _, track_landmark = _observe(
         config, rng_tracks, rng_pixels, poses, points, point_arc, calib, repeat_frames
     )
+    file_calib = Calibration(K=calib.K, baseline=calib.baseline,
+                             cam_T_imu=file_extrinsic(config, true_cam_T_imu))
 
     noise = np.zeros((T, 6))
     if not config.noise_free:
-        noise[:, :3] = config.velocity_sigma * rng_velocity.standard_normal((T, 3))
-        noise[:, 3:] = config.gyro_sigma * rng_velocity.standard_normal((T, 3))
+        noise[:, :3] = _sigma(config.velocity_sigma) * rng_velocity.standard_normal((T, 3))
+        noise[:, 3:] = _sigma(config.gyro_sigma) * rng_velocity.standard_normal((T, 3))
         noise[:, 3:] += np.asarray(config.gyro_bias)
     u_meas = u_true + noise
 
@@ -447,7 +576,7 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
         angular_velocity=u_meas[:, 3:].copy(),
         obs=Observations.from_rows(frame, track, z, T),
         n_tracks=n_tracks,
-        calibration=calib,
+        calibration=file_calib,
     )
     log.info(
         "simulated %s: %d frames, %d landmarks, %d tracks, %d observations",
@@ -465,7 +594,28 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
         track_landmark=track_landmark,
         landmark_points=points,
         config=config,
+        true_cam_T_imu=true_cam_T_imu.copy(),
     )
+
+
+def _sigma(value):
+    """A sigma setting as the simulator multiplies it: the float itself (bit for bit what it
+    always was) or three numbers (3,)."""
+    return value if isinstance(value, float) else np.asarray(value, dtype=float)
+
+
+def _velocity_samples(u_all: np.ndarray, T: int, pairing: str) -> np.ndarray:
+    """The noise-free velocity samples (T, 6) of instantaneous twists ``u_all`` (n > T, 6)
+    under ``pairing`` (module docstring)."""
+    if pairing == "mean":
+        return u_all[:T]
+    w = 0.5 * (u_all[:-1] + u_all[1:])  # the true twist of each interval
+    if pairing == "current":
+        return w[:T].copy()
+    out = np.empty((T, 6))
+    out[0] = u_all[0]
+    out[1:] = w[: T - 1]
+    return out
 
 
 def camera_groundtruth(poses: np.ndarray, cam_T_imu: np.ndarray) -> np.ndarray:
@@ -491,7 +641,12 @@ def write_simulation(
     * ``landmarks``: ``out_dir/NAME_landmarks.npz`` with ``landmarks`` (n_tracks, 3) the true
       world position per track index (world = IMU at frame 0), ``track_landmark``
       (n_tracks,), ``landmark_points`` (n_landmarks, 3), ``poses`` (T, 4, 4) true world_T_imu
-      and ``true_velocities`` (T, 6).
+      and ``true_velocities`` (T, 6);
+    * ``model``: ``out_dir/NAME_model.toml``, the true model of the drive (ekf.model, a
+      ``[model]`` table and the file's extrinsic under ``[file]``).
+
+    The ground truth is made with the true extrinsic: a user converting it with a faulty file
+    extrinsic gets wrong IMU poses, exactly as with the shared data.
 
     Files carry no write time: the same result always gives the same bytes.
     """
@@ -511,7 +666,7 @@ def write_simulation(
     paths = {
         "data": save_npz_reproducible(out_dir / f"{name}.npz", data),
     }
-    gt = camera_groundtruth(result.poses, calib.cam_T_imu)
+    gt = camera_groundtruth(result.poses, result.cam_T_imu)
     rows = np.concatenate(
         [(seq.timestamps - seq.timestamps[0])[:, None], gt[:, :3, :4].reshape(-1, 12)], axis=1
     )
@@ -529,6 +684,8 @@ def write_simulation(
             "true_velocities": result.true_velocities,
         },
     )
+    model_text = result.model.to_toml().encode("utf-8")
+    paths["model"] = atomic_write(out_dir / f"{name}_model.toml", lambda fh: fh.write(model_text))
     return paths
 
 

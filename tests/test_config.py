@@ -117,7 +117,16 @@ def _error(path) -> str:
         ("[filter]\nblas_threads = 1000000000\n", "'blas_threads' must be an integer from 1 to 1024"),
         ("[filter]\nblas_threads = 0\n", "'blas_threads'"),
         # finiteness and sane bounds: squares must stay finite and positive
-        ("[filter]\nvelocity_sigma = inf\n", "'velocity_sigma' must be a positive number from 1e-12 to 1000, got inf"),
+        ("[filter]\nvelocity_sigma = inf\n", "'velocity_sigma' must be a positive number from 1e-12 to 1000, "
+         "or an array of 3 such numbers (x, y, z), got inf"),
+        # per-axis sigmas: one number or exactly three, each checked
+        ("[filter]\nvelocity_sigma = [0.5, 0.4]\n", "'velocity_sigma' must be a positive number from 1e-12 to 1000, "
+         "or an array of 3 such numbers (x, y, z), got an array [0.5, 0.4]"),
+        ("[filter]\ngyro_sigma = [0.05, nan, 0.05]\n", "'gyro_sigma' must be a positive number"),
+        ("[filter]\ngyro_sigma = [0.05, 0, 0.05]\n", "got an array [0.05, 0, 0.05]"),
+        ("[filter]\ngyro_sigma = [0.05, \"0.1\", 0.05]\n", "'gyro_sigma' must be"),
+        ("[filter]\nvelocity_sigma = [[0.5, 0.4, 0.3]]\n", "'velocity_sigma' must be"),
+        ("[filter]\nvelocity_sigma = [0.5, [0.4], 0.3]\n", "'velocity_sigma' must be"),
         ("[filter]\ngyro_sigma = -inf\n", "got -inf"),
         ("[filter]\nmax_depth = 1e400\n", "'max_depth' must be a positive number up to 1e+06, got inf"),
         ("[filter]\npixel_sigma = 1e200\n", "got 1e+200"),
@@ -137,7 +146,11 @@ def _error(path) -> str:
         ("filter = 3\n", "[filter] must be a table of settings, got 3"),
         ("[[filter]]\npixel_sigma = 1.0\n", "[filter] must be a table of settings, got an array"),
         ("smoother = \"fast\"\n", "[smoother] must be a table of settings, got 'fast'"),
-        ("[smoothr]\ninit = \"ekf\"\n", "unknown table [smoothr] (valid tables: [filter], [smoother])"),
+        ("[smoothr]\ninit = \"ekf\"\n", "unknown table [smoothr] (valid tables: [filter], [smoother], [model], [file])"),
+        # a drive's model beside the settings (ekf.model)
+        ("[model]\nvelocity_sigma = 1\n", "[model]: missing setting 'gyro_sigma'"),
+        ("model = 3\n", "[model] must be a table of settings, got 3"),
+        ("[file]\npixel_sigma = 1.0\n", "[file]: a [file] table needs a [model] table beside it"),
         ("pixel_sigma = 2.0\n[filter]\nvelocity_sigma = 0.3\n", "unknown top-level key 'pixel_sigma'"),
         ("[filter]\npixel_sigma = 1.0\npixel_sigma = 2.0\n", "not valid TOML: Cannot overwrite a value"),
         ("[filter]\n[filter]\n", "not valid TOML"),
@@ -194,6 +207,10 @@ def test_good_settings_files(tmp_path):
         (["--pixel-sigma", "abc"], "--pixel-sigma: must be a positive number from 1e-12 to 10000, got 'abc'"),
         (["--velocity-sigma", "nan"], "--velocity-sigma: must be a positive number"),
         (["--gyro-sigma=-inf"], "--gyro-sigma: must be a positive number"),
+        (["--velocity-sigma", "0.5,0.4"], "--velocity-sigma: must be a positive number from 1e-12 to 1000, "
+                                          "or an array of 3 such numbers (x, y, z), got an array [0.5, 0.4]"),
+        (["--velocity-sigma", "0.5,x,0.3"], "--velocity-sigma: must be a positive number"),
+        (["--gyro-sigma", "0.05,0.05,0"], "--gyro-sigma: must be a positive number"),
         (["--max-depth", "1e400"], "--max-depth: must be a positive number up to 1e+06, got inf"),
         (["--min-disparity", "1e300"], "--min-disparity: must be a number from 0 to 10000"),
         (["--gate-probability", "1"], "--gate-probability: must be a probability in (0, 1)"),
@@ -302,3 +319,28 @@ def test_cli_bad_config_exits_2_with_one_line_and_writes_nothing(sim_file, tmp_p
     assert len(err) == 1 and err[0].startswith("vislam run: error: ") and str(bad) in err[0]
     assert "Traceback" not in captured.err and not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.toml"]
+
+
+# --- issue 12: per-axis velocity noise -----------------------------------------------------------
+
+
+def test_per_axis_sigmas_from_the_constructor_a_file_and_flags(tmp_path):
+    cfg = FilterConfig(velocity_sigma=[0.5, 0.4, 0.3], gyro_sigma=np.array([0.01, 0.02, 0.03]))
+    assert cfg.velocity_sigma == (0.5, 0.4, 0.3) and cfg.gyro_sigma == (0.01, 0.02, 0.03)
+    np.testing.assert_array_equal(np.diag(cfg.velocity_cov),
+                                  np.array([0.5, 0.4, 0.3, 0.01, 0.02, 0.03]) ** 2)
+    assert np.count_nonzero(cfg.velocity_cov - np.diag(np.diag(cfg.velocity_cov))) == 0
+    # one number still means every axis, and the two spellings give the same covariance
+    np.testing.assert_array_equal(FilterConfig(velocity_sigma=0.5).velocity_cov,
+                                  FilterConfig(velocity_sigma=(0.5, 0.5, 0.5)).velocity_cov)
+    import json
+
+    assert json.loads(json.dumps(cfg.to_dict()))["velocity_sigma"] == [0.5, 0.4, 0.3]
+    p = _write(tmp_path, "[filter]\nvelocity_sigma = [0.5, 0.4, 1]\ngyro_sigma = 0.02\n")
+    cfg = filter_config_from_args(_args("--config", str(p)))
+    assert cfg.velocity_sigma == (0.5, 0.4, 1.0) and cfg.gyro_sigma == 0.02
+    assert all(type(x) is float for x in cfg.velocity_sigma)
+    cfg = filter_config_from_args(_args("--config", str(p), "--gyro-sigma", "0.1, 0.2,0.3",
+                                        "--velocity-sigma", "0.7"))
+    assert cfg.gyro_sigma == (0.1, 0.2, 0.3) and cfg.velocity_sigma == 0.7
+    assert FilterConfig(**FilterConfig(velocity_sigma=(1, 2, 3)).to_dict()).velocity_sigma == (1.0, 2.0, 3.0)

@@ -192,6 +192,8 @@ def _expected(key: str, value):
     """A file value as the settings store it (an int in a float field compares equal)."""
     if key == "gate_probability" and isinstance(value, str):
         return None
+    if isinstance(value, list):  # a per-axis sigma is stored as a tuple
+        return tuple(value)
     return value
 
 

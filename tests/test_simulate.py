@@ -46,7 +46,7 @@ def test_same_seed_same_bytes_different_seed_different(tmp_path):
     b = write_simulation(simulate(SMALL), tmp_path / "b", "x")
     c = write_simulation(simulate(replace(SMALL, seed=8)), tmp_path / "c", "x")
     fa, fb, fc = _file_bytes(a), _file_bytes(b), _file_bytes(c)
-    assert set(fa) == {"data", "groundtruth", "landmarks"}
+    assert set(fa) == {"data", "groundtruth", "landmarks", "model"}
     for role in fa:
         assert fa[role] == fb[role], role
         assert fa[role] != fc[role], role

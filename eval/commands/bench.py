@@ -42,9 +42,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ekf.errors import InputError
-    from eval.benchmark import collect_sequences, default_out_dir, run_benchmark
+    from eval.benchmark import apply_model_to, collect_sequences, default_out_dir, run_benchmark
     from eval.registry import DEFAULT_BENCH, parse_estimator_list
-    from eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
+    from eval.runjob import (
+        environment_settings,
+        filter_config_from_args,
+        model_from_args,
+        smoother_settings_from_args,
+    )
 
     estimators = parse_estimator_list(args.estimators, DEFAULT_BENCH)
     config = filter_config_from_args(args)
@@ -56,7 +61,10 @@ def run(args: argparse.Namespace) -> int:
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 1:
         raise InputError(f"--jobs must be >= 1, got {jobs}")
+    model = model_from_args(args)
     sequences = collect_sequences(args.paths, frames=args.frames, seed=args.seed)
+    if model is not None:
+        sequences = apply_model_to(sequences, model)
     jobs = min(jobs, len(sequences) * len(estimators))
 
     if args.out:
@@ -66,7 +74,9 @@ def run(args: argparse.Namespace) -> int:
         latest = Path("results") / "latest"
     result = run_benchmark(
         sequences, estimators, config, out, jobs=jobs, show_progress=not args.quiet,
-        settings=environment_settings(), latest_link=latest, smoother=smoother, force=args.force,
+        settings={**environment_settings(),
+                  "model": None if model is None else model.to_dict()},
+        latest_link=latest, smoother=smoother, force=args.force,
     )
     if not args.quiet:
         print(result.summary)

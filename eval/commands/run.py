@@ -42,22 +42,27 @@ def run(args: argparse.Namespace) -> int:
     from eval.groundtruth import find_ground_truth
     from eval.loader import load_sequence
     from eval.registry import get_estimator
-    from eval.runjob import filter_config_from_args, smoother_settings_from_args
+    from ekf.model import model_sequence
+    from eval.runjob import filter_config_from_args, model_from_args, smoother_settings_from_args
 
     # Everything that can be wrong with the input is checked before anything is written.
     get_estimator(args.estimator)
     config = filter_config_from_args(args)
     smoother = smoother_settings_from_args(args)
+    model = model_from_args(args)
     seq = load_sequence(args.file, clean=False)
-    gt = find_ground_truth(args.file, override=args.gt)
+    if model is not None:  # the model's extrinsic and bias act on the data
+        seq = model_sequence(seq, model)
+    gt = find_ground_truth(args.file, override=args.gt,
+                           cam_T_imu=None if model is None else model.cam_T_imu)
     out = OutputDir(args.out, force=args.force, inputs=[args.file], expected=RUN_FILES)
     with out as tmp:
-        metrics = _estimate_and_write(args, seq, gt, config, smoother, tmp)
+        metrics = _estimate_and_write(args, seq, gt, config, smoother, model, tmp)
     print(_summary_line(metrics, args.out))
     return 0
 
 
-def _estimate_and_write(args, seq, gt, config, smoother, tmp: Path) -> dict:
+def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path) -> dict:
     from eval.runjob import (
         RPE_DEFINITION,
         Progress,
@@ -85,6 +90,8 @@ def _estimate_and_write(args, seq, gt, config, smoother, tmp: Path) -> dict:
     settings = {
         "input": str(Path(args.file).resolve()),
         "ground_truth": _gt_path(gt, args.gt),
+        "ground_truth_extrinsic": None if gt is None else getattr(gt, "extrinsic_source", "file"),
+        "model": None if model is None else model.to_dict(),
         "estimator": args.estimator,
         "filter": config.to_dict(),
         **({"smoother": smoother.to_dict()} if args.estimator.startswith("smoother") else {}),

@@ -1,8 +1,11 @@
 """`vislam simulate`: write a simulated KITTI-like drive with its ground truth.
 
 Writes ``OUT/NAME.npz`` (the shared data's format), ``OUT/groundtruth/NAME.txt`` (KITTI poses of
-the left camera with time) and ``OUT/NAME_landmarks.npz`` (true landmarks, poses, velocities).
-The same seed and settings always give the same bytes.
+the left camera with time), ``OUT/NAME_landmarks.npz`` (true landmarks, poses, velocities) and
+``OUT/NAME_model.toml`` (the true model of the drive: ekf.model). The same seed and settings
+always give the same bytes. Faults a model identification must find: per-axis velocity noise
+(``--velocity-sigma 0.05,0.04,0.03``), a gyro bias, the velocity pairing of the samples, and a
+wrong extrinsic in the file (``--file-extrinsic-fault kitti``, ``--file-extrinsic-offset``).
 """
 
 from __future__ import annotations
@@ -13,7 +16,24 @@ import time
 from pathlib import Path
 
 from ekf.errors import InputError
-from eval.simulate import DEFAULT_SIM, SimConfig, simulate, simulation_stats, write_simulation
+from eval.simulate import (
+    DEFAULT_SIM,
+    FILE_EXTRINSIC_FAULTS,
+    SIM_VELOCITY_PAIRINGS,
+    SimConfig,
+    simulate,
+    simulation_stats,
+    write_simulation,
+)
+
+
+def _numbers(text: str) -> list[float]:
+    """One flag token: a number, or numbers separated by commas ("0.5,0.4,0.3")."""
+    try:
+        return [float(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number or comma-separated numbers: {text!r}") \
+            from None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,15 +56,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--velocity-sigma",
-        type=float,
-        default=d.velocity_sigma,
-        help="linear-velocity noise per sample, m/s (default %(default)s)",
+        type=_numbers,
+        nargs="+",
+        default=None,
+        metavar="M/S",
+        help="linear-velocity noise per sample, m/s: one value for every axis or three (x, y, z; "
+        f"'0.5,0.4,0.3' or '0.5 0.4 0.3') (default {d.velocity_sigma})",
     )
     parser.add_argument(
         "--gyro-sigma",
-        type=float,
-        default=d.gyro_sigma,
-        help="angular-velocity noise per sample, rad/s (default %(default)s)",
+        type=_numbers,
+        nargs="+",
+        default=None,
+        metavar="RAD/S",
+        help=f"angular-velocity noise per sample, rad/s: one value or three (default {d.gyro_sigma})",
     )
     parser.add_argument(
         "--gyro-bias",
@@ -70,6 +95,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--noise-free", action="store_true", help="no pixel, velocity or bias noise at all"
     )
+    parser.add_argument(
+        "--velocity-pairing",
+        choices=SIM_VELOCITY_PAIRINGS,
+        default=d.velocity_pairing,
+        help="which velocity sample covers [k, k+1] in the data made: current (u_k), next "
+        "(u_{k+1}) or mean (their mean) (default %(default)s)",
+    )
+    parser.add_argument(
+        "--file-extrinsic-fault",
+        choices=FILE_EXTRINSIC_FAULTS,
+        default=d.file_extrinsic_fault,
+        help="write a wrong cam_T_imu into the file: 'kitti' stores imu_T_cam's translation "
+        "where cam_T_imu's belongs, like the shared data (default %(default)s: the true one)",
+    )
+    parser.add_argument(
+        "--file-extrinsic-offset",
+        type=float,
+        nargs=6,
+        default=None,
+        metavar=("TX", "TY", "TZ", "RX", "RY", "RZ"),
+        help="add this to the file's cam_T_imu: translation (m) and rotation vector (rad, "
+        "applied on the left) (default 0)",
+    )
 
 
 def config_from_args(args: argparse.Namespace) -> SimConfig:
@@ -80,18 +128,39 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         raise InputError(f"--gyro-bias takes one or three values, got {len(bias)}")
     name = args.name if args.name is not None else f"sim-seed{args.seed}"
     check_name(name)
+    offset = getattr(args, "file_extrinsic_offset", None)
     return SimConfig(
         seed=args.seed,
         n_frames=args.frames,
         name=name,
         pixel_sigma=args.pixel_sigma,
-        velocity_sigma=args.velocity_sigma,
-        gyro_sigma=args.gyro_sigma,
+        velocity_sigma=_sigma_arg(args, "velocity_sigma", DEFAULT_SIM.velocity_sigma),
+        gyro_sigma=_sigma_arg(args, "gyro_sigma", DEFAULT_SIM.gyro_sigma),
         gyro_bias=tuple(bias),
         landmark_density=args.landmark_density,
         repeat_event_rate=args.repeat_event_rate,
         noise_free=args.noise_free,
+        velocity_pairing=getattr(args, "velocity_pairing", DEFAULT_SIM.velocity_pairing),
+        file_extrinsic_fault=getattr(args, "file_extrinsic_fault",
+                                     DEFAULT_SIM.file_extrinsic_fault),
+        file_extrinsic_offset=tuple(offset) if offset is not None
+        else DEFAULT_SIM.file_extrinsic_offset,
     )
+
+
+def _sigma_arg(args: argparse.Namespace, dest: str, default):
+    """``--velocity-sigma`` / ``--gyro-sigma``: tokens of one or three numbers (commas or
+    spaces) -> a float or a tuple of three; InputError naming the flag otherwise."""
+    raw = getattr(args, dest, None)
+    if raw is None:
+        return default
+    values = [x for token in raw for x in (token if isinstance(token, list) else [token])]
+    if len(values) == 1:
+        return float(values[0])
+    if len(values) != 3:
+        flag = "--" + dest.replace("_", "-")
+        raise InputError(f"{flag} takes one or three values, got {len(values)} ({dest})")
+    return tuple(float(x) for x in values)
 
 
 #: Largest dense feature array (4, M, T) of float64 it writes; the data format is dense.
@@ -110,7 +179,8 @@ def check_name(name: str) -> None:
 
 def outputs(name: str) -> tuple[str, ...]:
     """The files ``vislam simulate`` writes, relative to ``--out`` (eval.simulate.write_simulation)."""
-    return (f"{name}.npz", f"groundtruth/{name}.txt", f"{name}_landmarks.npz")
+    return (f"{name}.npz", f"groundtruth/{name}.txt", f"{name}_landmarks.npz",
+            f"{name}_model.toml")
 
 
 def run(args: argparse.Namespace) -> int:

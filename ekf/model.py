@@ -1,0 +1,487 @@
+"""The model of a drive: what is identified about it, used by every estimator on it.
+
+A :class:`Model` holds the noise levels, the gyro bias, which velocity sample covers an
+interval and the camera-IMU extrinsic of one drive (DESIGN.md, "The model is part of the
+data"). It is read and written as a TOML ``[model]`` table, with the file's own values beside
+it in an optional ``[file]`` table (same keys, all optional) so that a report can say where the
+two disagree::
+
+    [model]
+    source = "vislam calibrate 0027.npz"
+    velocity_sigma = [0.05, 0.05, 0.05]         # m/s, x y z of the IMU body frame
+    gyro_sigma = [0.005, 0.005, 0.005]          # rad/s
+    pixel_sigma = 0.3                           # px, each of uL vL uR vR
+    gyro_bias = [0.001, -0.002, 0.0005]         # rad/s; absent: the data supports none
+    gyro_bias_sigma = [1e-4, 1e-4, 1e-4]        # rad/s (optional, informative)
+    velocity_pairing = "next"                   # "current", "next" or "mean"
+    cam_T_imu = [                               # 4x4, rows; rigid
+        [r11, r12, r13, tx], [r21, r22, r23, ty], [r31, r32, r33, tz], [0.0, 0.0, 0.0, 1.0],
+    ]
+    cam_T_imu_sigma = [0.01, 0.01, 0.5, 1e-3, 1e-3, 1e-3]  # translation (m) then rotation (rad)
+    cam_T_imu_undetermined = ["tz"]             # components the drive cannot determine
+
+    [file]
+    cam_T_imu = [...]                           # the data file's matrix
+
+The extrinsic's uncertainty. ``cam_T_imu_sigma`` are the standard deviations of a
+perturbation of ``cam_T_imu``: translation ``[tx, ty, tz]`` (m, of the translation column)
+then rotation ``[rx, ry, rz]`` (rad, a rotation vector applied on the left,
+``R_true = so3_exp([rx, ry, rz]) @ R``). It is None (absent) when the extrinsic was not
+estimated (taken from the file, or known exactly as in simulation). A component the drive
+cannot determine (the vertical lever arm of a planar drive, say) is named in
+``cam_T_imu_undetermined`` (names from EXTRINSIC_COMPONENTS); its value in ``cam_T_imu`` is
+then the file's or the prior's, and its sigma, if one is given, is no confident figure
+(:meth:`Model.extrinsic_sigmas` reports it as inf). TOML can write inf, but every other
+setting refuses it, so the list is the one representation of "undetermined".
+
+Validation is as strict as ekf.config's: every key checked for type, finiteness and range;
+errors are :class:`ekf.errors.InputError` naming the file, the table and the key
+(``m.toml [model]: setting 'pixel_sigma' must be ..., got -1``); unknown and missing keys are
+named too. ``Model.to_toml()`` writes the small TOML subset needed (numbers with ``repr``
+precision, so a model reads back exactly equal).
+
+Using a model (:func:`apply_model`): the sequence gets the model's ``cam_T_imu`` and has the
+model's gyro bias subtracted from its angular velocities; the config gets the model's velocity
+and gyro sigmas, pixel sigma and velocity pairing. A model with a bias leaves
+``config.gyro_bias`` (estimating a residual bias, from zero, with ``gyro_bias_sigma``) as the
+config says; a model saying "no bias" sets ``gyro_bias=False``. Ground truth must be converted
+with the same extrinsic (eval.groundtruth ``GroundTruth.with_extrinsic``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ekf.config import (
+    FILTER_RULES,
+    SIGMA_MIN,
+    FilterConfig,
+    Rule,
+    per_axis,
+    settings_tables,
+    show_path,
+    show_value,
+    sigma,
+    sigma3,
+)
+from ekf.errors import InputError
+from ekf.geometry import is_rigid
+
+#: Names of the six extrinsic components, in the order of ``cam_T_imu_sigma``.
+EXTRINSIC_COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")
+#: Rigidity tolerance of ``cam_T_imu`` (the loader's: files carry it to about 1e-7).
+MODEL_RIGID_TOL = 1e-5
+#: Largest translation accepted in ``cam_T_imu`` (m).
+MAX_LEVER_ARM = 1e3
+#: Largest gyro bias accepted (rad/s), as the simulator's.
+MAX_GYRO_BIAS = 10.0
+#: Longest ``source`` text.
+MAX_SOURCE_CHARS = 10_000
+#: FilterConfig fields a model sets (``gyro_bias`` only when the model says "no bias").
+MODEL_CONFIG_FIELDS = ("velocity_sigma", "gyro_sigma", "pixel_sigma", "velocity_pairing")
+
+
+# --- checks of one key -------------------------------------------------------------------------
+
+
+def _items(value: Any) -> list | None:
+    """The elements of an array (a list, a tuple, a numpy array's first axis), else None."""
+    if isinstance(value, (list, tuple)):
+        return list(value)
+    if isinstance(value, np.ndarray) and value.ndim >= 1:
+        return list(value)
+    return None
+
+
+def _vector(value: Any, rule: Rule, n: int, what: str) -> tuple[float, ...]:
+    """``n`` numbers each allowed by ``rule``; ValueError "must be ..., got ..." otherwise."""
+    items = _items(value)
+    if items is not None and len(items) == n:
+        try:
+            return tuple(rule.check(x) for x in items)
+        except ValueError:
+            pass
+    raise ValueError(f"must be {what}, got {show_value(value)}")
+
+
+def _check_sigma3(value: Any) -> tuple[float, float, float]:
+    rule = sigma3(1e3)
+    try:
+        out = rule.check(value)
+    except ValueError:
+        raise ValueError(f"must be an array of 3 positive numbers from {SIGMA_MIN:g} to 1000 "
+                         f"(x, y, z; one number means every axis), got {show_value(value)}") from None
+    return tuple(float(x) for x in per_axis(out))
+
+
+def _check_pixel_sigma(value: Any) -> float:
+    return FILTER_RULES["pixel_sigma"].check(value)
+
+
+def _check_pairing(value: Any) -> str:
+    return FILTER_RULES["velocity_pairing"].check(value)
+
+
+def _check_bias(value: Any) -> tuple[float, float, float]:
+    return _vector(value, Rule("float", -MAX_GYRO_BIAS, MAX_GYRO_BIAS), 3,
+                   f"an array of 3 numbers within +-{MAX_GYRO_BIAS:g} rad/s (absent: no bias)")
+
+
+def _check_bias_sigma(value: Any) -> tuple[float, float, float]:
+    return _vector(value, sigma(1e3), 3,
+                   f"an array of 3 positive numbers from {SIGMA_MIN:g} to 1000 rad/s")
+
+
+def _check_extrinsic_sigma(value: Any) -> tuple[float, ...]:
+    return _vector(value, sigma(1e6), 6,
+                   f"an array of 6 positive numbers from {SIGMA_MIN:g} to 1e+06 (translation m, "
+                   "then rotation rad)")
+
+
+def _check_matrix(value: Any) -> np.ndarray:
+    what = ("a rigid 4x4 transform, 4 arrays (rows) of 4 numbers (rotation orthonormal with "
+            f"det +1, last row 0 0 0 1, translation within {MAX_LEVER_ARM:g} m)")
+    rows = _items(value)
+    if rows is None or len(rows) != 4:
+        raise ValueError(f"must be {what}, got {show_value(value)}")
+    number = Rule("float", -MAX_LEVER_ARM, MAX_LEVER_ARM)
+    try:
+        m = np.array([_vector(r, number, 4, "") for r in rows], dtype=float)
+    except ValueError:
+        raise ValueError(f"must be {what}, got {show_value(value)}") from None
+    if not is_rigid(m, tol=MODEL_RIGID_TOL):
+        raise ValueError(f"must be {what}, got a matrix that is not rigid")
+    m.setflags(write=False)
+    return m
+
+
+def _check_undetermined(value: Any) -> tuple[str, ...]:
+    what = ("an array of distinct names from " + ", ".join(repr(c) for c in EXTRINSIC_COMPONENTS))
+    if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value) \
+            and all(v in EXTRINSIC_COMPONENTS for v in value) and len(set(value)) == len(value):
+        return tuple(c for c in EXTRINSIC_COMPONENTS if c in value)  # canonical order
+    raise ValueError(f"must be {what}, got {show_value(value)}")
+
+
+def _check_source(value: Any) -> str:
+    if isinstance(value, str) and len(value) <= MAX_SOURCE_CHARS:
+        return value
+    raise ValueError(f"must be text of at most {MAX_SOURCE_CHARS} characters, "
+                     f"got {show_value(value)}")
+
+
+#: The check of every key of a ``[model]`` table, in the order to_toml writes them.
+MODEL_CHECKS = {
+    "source": _check_source,
+    "velocity_sigma": _check_sigma3,
+    "gyro_sigma": _check_sigma3,
+    "pixel_sigma": _check_pixel_sigma,
+    "gyro_bias": _check_bias,
+    "gyro_bias_sigma": _check_bias_sigma,
+    "velocity_pairing": _check_pairing,
+    "cam_T_imu": _check_matrix,
+    "cam_T_imu_sigma": _check_extrinsic_sigma,
+    "cam_T_imu_undetermined": _check_undetermined,
+}
+#: Keys a ``[model]`` table must have (the others are optional).
+REQUIRED_KEYS = ("velocity_sigma", "gyro_sigma", "pixel_sigma", "velocity_pairing", "cam_T_imu")
+
+
+def _check_table(data: Any, source: str, required: tuple[str, ...]) -> dict:
+    """A ``[model]`` or ``[file]`` table checked key by key (InputError naming ``source`` and
+    the key); values normalised."""
+    if not isinstance(data, Mapping):
+        raise InputError(f"{source}: expected a table of model settings, got {show_value(data)}")
+    for key, value in data.items():
+        if key not in MODEL_CHECKS:
+            kind = "table" if isinstance(value, Mapping) else "setting"
+            raise InputError(f"{source}: unknown {kind} {key!r} (valid model settings: "
+                             f"{', '.join(MODEL_CHECKS)})")
+    for key in required:
+        if key not in data:
+            raise InputError(f"{source}: missing setting {key!r} (a model needs "
+                             f"{', '.join(required)})")
+    return _check_values(data, f"{source}: setting")
+
+
+def _check_values(data: Mapping, label: str) -> dict:
+    out = {}
+    for key, value in data.items():
+        try:
+            out[key] = MODEL_CHECKS[key](value)
+        except ValueError as exc:
+            raise InputError(f"{label} {key!r} {exc}") from None
+    return out
+
+
+# --- the model ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """What is identified about a drive (module docstring); every field checked like a TOML
+    value. Compare with ``==`` (exact, matrices included); not hashable."""
+
+    #: Linear-velocity noise sigma per axis (m/s), x y z of the IMU body frame.
+    velocity_sigma: tuple[float, float, float]
+    #: Angular-velocity noise sigma per axis (rad/s).
+    gyro_sigma: tuple[float, float, float]
+    #: Stereo pixel noise sigma (px).
+    pixel_sigma: float
+    #: Which velocity sample covers [k, k+1]: "current", "next" or "mean".
+    velocity_pairing: str
+    #: The camera-IMU extrinsic (4x4, rigid, read-only): p_cam = cam_T_imu @ p_imu.
+    cam_T_imu: np.ndarray
+    #: Constant gyro bias (rad/s, 3), or None when the data supports none.
+    gyro_bias: tuple[float, float, float] | None = None
+    #: Standard deviation of the identified bias (rad/s, 3), if known.
+    gyro_bias_sigma: tuple[float, float, float] | None = None
+    #: Sigmas of the extrinsic (translation m, then rotation rad), None if not estimated.
+    cam_T_imu_sigma: tuple[float, ...] | None = None
+    #: Extrinsic components the drive cannot determine (names from EXTRINSIC_COMPONENTS).
+    cam_T_imu_undetermined: tuple[str, ...] = ()
+    #: Where the model comes from (free text).
+    source: str = ""
+    #: The data file's own values ([file] table): any model key, e.g. {"cam_T_imu": ...}.
+    file: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                  if f.name != "file"}
+        for key in ("gyro_bias", "gyro_bias_sigma", "cam_T_imu_sigma"):
+            if values[key] is None:
+                del values[key]
+        for name, value in _check_values(values, "model setting").items():
+            object.__setattr__(self, name, value)
+        file_values = self.file if self.file is not None else {}
+        if not isinstance(file_values, Mapping):
+            raise InputError(f"model setting 'file' must be a table of the file's values, got "
+                             f"{show_value(file_values)}")
+        unknown = [k for k in file_values if k not in MODEL_CHECKS]
+        if unknown:
+            raise InputError(f"model [file]: unknown setting {unknown[0]!r} (valid model "
+                             f"settings: {', '.join(MODEL_CHECKS)})")
+        object.__setattr__(self, "file", _check_values(
+            {k: v for k, v in file_values.items() if v is not None}, "model [file] setting"))
+
+    # --- derived ------------------------------------------------------------------------
+    @property
+    def has_bias(self) -> bool:
+        return self.gyro_bias is not None
+
+    def extrinsic_sigmas(self) -> np.ndarray:
+        """Sigmas (6,) of the extrinsic, inf for undetermined components, nan when the
+        extrinsic was not estimated."""
+        out = np.full(6, np.nan) if self.cam_T_imu_sigma is None \
+            else np.array(self.cam_T_imu_sigma, dtype=float)
+        for name in self.cam_T_imu_undetermined:
+            out[EXTRINSIC_COMPONENTS.index(name)] = np.inf
+        return out
+
+    def replace(self, **changes) -> "Model":
+        """A copy with ``changes`` applied (validated)."""
+        known = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(changes) - known)
+        if unknown:
+            raise InputError(f"unknown model setting(s): {', '.join(unknown)}")
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        """The model as JSON-able values ([model] keys, ``file`` a dict of the [file] keys):
+        matrices as lists of rows, absent values as None."""
+        out = {name: _plain(getattr(self, name)) for name in MODEL_CHECKS}
+        out["file"] = {k: _plain(v) for k, v in self.file.items()}
+        return out
+
+    def _canonical(self) -> tuple:
+        d = self.to_dict()
+        d["file"] = tuple(sorted(d["file"].items()))
+        return tuple((k, _frozen(v)) for k, v in d.items())
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Model):
+            return NotImplemented
+        return self._canonical() == other._canonical()
+
+    __hash__ = None  # type: ignore[assignment]
+
+    # --- TOML ---------------------------------------------------------------------------
+    @classmethod
+    def from_mapping(cls, model: Mapping, source: str, file: Mapping | None = None,
+                     file_source: str | None = None) -> "Model":
+        """A model from a ``[model]`` table (and the ``[file]`` table, if any); ``source`` and
+        ``file_source`` name them in errors."""
+        values = _check_table(model, source, REQUIRED_KEYS)
+        file_values = {} if file is None else _check_table(
+            file, file_source or f"{source} [file]", ())
+        return cls(**values, file=file_values)
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> "Model":
+        """The model of TOML file ``path`` (its ``[model]`` table and optional ``[file]``
+        table; a ``[filter]`` table or top-level filter settings beside them are checked as
+        settings). InputError naming the file, table and key at any fault."""
+        model = model_from_settings(path)
+        if model is None:
+            raise InputError(f"{show_path(path)}: no [model] table (a model file has a [model] "
+                             "table and, optionally, a [file] table)")
+        return model
+
+    def to_toml(self) -> str:
+        """The model as TOML text: a ``[model]`` table and, when the file's values are known,
+        a ``[file]`` table. Reads back (``from_toml``) exactly equal."""
+        lines = ["# The model of a drive (vislam, ekf/model.py): noise sigmas per axis x y z",
+                 "# (m/s, rad/s), pixel sigma (px), gyro bias (rad/s, absent: none), velocity",
+                 "# pairing, cam_T_imu (rows) and its sigmas (translation m, then rotation rad).",
+                 "[model]"]
+        lines += _toml_items(self.to_dict())
+        if self.file:
+            lines += ["", "# The data file's own values, for comparison.", "[file]"]
+            lines += _toml_items({k: _plain(v) for k, v in self.file.items()})
+        return "\n".join(lines) + "\n"
+
+    def write_toml(self, path: str | Path) -> Path:
+        """Write :meth:`to_toml` to ``path`` (UTF-8)."""
+        path = Path(path)
+        path.write_text(self.to_toml(), encoding="utf-8")
+        return path
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return [[float(x) for x in row] for row in value]
+    if isinstance(value, tuple):
+        return list(value)
+    return value
+
+
+def _frozen(value: Any) -> Any:
+    if isinstance(value, (list, tuple)):
+        return tuple(_frozen(v) for v in value)
+    if isinstance(value, dict):
+        return tuple(sorted((k, _frozen(v)) for k, v in value.items()))
+    return value
+
+
+# --- a small TOML writer -----------------------------------------------------------------------
+
+
+def _toml_string(text: str) -> str:
+    out = []
+    for ch in text:
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif ch == "\n":
+            out.append("\\n")
+        elif ch == "\t":
+            out.append("\\t")
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F or 0xD800 <= ord(ch) <= 0xDFFF:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, numbers.Integral):
+        return str(int(value))
+    if isinstance(value, numbers.Real):
+        x = float(value)
+        if not math.isfinite(x):
+            raise ValueError(f"cannot write {x!r} to a model file")
+        return repr(x)  # shortest text that reads back to the same float
+    if isinstance(value, str):
+        return _toml_string(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} to a model file")
+
+
+def _toml_items(values: Mapping[str, Any]) -> list[str]:
+    lines = []
+    for key, value in values.items():
+        if value is None or key == "file" or (key == "cam_T_imu_undetermined" and not value):
+            continue
+        if key == "cam_T_imu":
+            rows = ",\n".join("    " + _toml_value(row) for row in value)
+            lines.append(f"{key} = [\n{rows},\n]")
+        else:
+            lines.append(f"{key} = {_toml_value(value)}")
+    return lines
+
+
+# --- reading a settings file ---------------------------------------------------------------
+
+
+def model_from_settings(path: str | Path) -> Model | None:
+    """The model of settings file ``path`` (its ``[model]`` and ``[file]`` tables), None when
+    it has no ``[model]`` table; a ``[file]`` table alone is an error, and the file's filter
+    settings are checked too (a model file is a settings file)."""
+    tables = settings_tables(path)
+    FilterConfig.from_mapping(*tables["filter"])
+    (model, source), (file, file_source) = tables["model"], tables["file"]
+    for table, where in ((model, source), (file, file_source)):
+        if table is not None and not isinstance(table, dict):
+            raise InputError(f"{where} must be a table of model settings, "
+                             f"got {show_value(table)}")
+    if model is None:
+        if file is not None:
+            raise InputError(f"{file_source}: a [file] table needs a [model] table beside it")
+        return None
+    return Model.from_mapping(model, source, file, file_source)
+
+
+# --- using a model ------------------------------------------------------------------------------
+
+
+def model_sequence(seq, model: Model):
+    """``seq`` with the model's extrinsic as ``calibration.cam_T_imu`` and the model's gyro
+    bias (if any) subtracted from the angular velocities. Apply once per sequence."""
+    calibration = dataclasses.replace(seq.calibration, cam_T_imu=np.array(model.cam_T_imu))
+    changes: dict[str, Any] = {"calibration": calibration}
+    if model.gyro_bias is not None:
+        changes["angular_velocity"] = np.asarray(seq.angular_velocity, dtype=float) \
+            - np.asarray(model.gyro_bias)[None, :]
+    return dataclasses.replace(seq, **changes)
+
+
+def interval_sigma_factor(pairing: str) -> float:
+    """Sigma of an interval's twist noise / sigma of one velocity sample: 1/sqrt(2) for the
+    "mean" pairing (the mean of two independent samples), 1 otherwise. A model's sigmas are
+    per sample (what a data sheet or the simulator states); the estimators' velocity
+    covariance is per interval."""
+    return math.sqrt(0.5) if pairing == "mean" else 1.0
+
+
+def model_config(config: FilterConfig, model: Model) -> FilterConfig:
+    """``config`` with the model's noise model: velocity and gyro sigmas per axis (per
+    interval: the model's per-sample sigmas times :func:`interval_sigma_factor`, the covariance
+    ``vislam calibrate`` fitted), pixel sigma, velocity pairing; ``gyro_bias=False`` when the
+    model says the data has no bias (a model with a bias leaves ``gyro_bias`` as the config has
+    it: the bias is subtracted from the data by :func:`model_sequence`, and a filter estimating
+    one starts from zero)."""
+    f = interval_sigma_factor(model.velocity_pairing)
+    changes: dict[str, Any] = {
+        "velocity_sigma": tuple(f * x for x in model.velocity_sigma),
+        "gyro_sigma": tuple(f * x for x in model.gyro_sigma),
+        "pixel_sigma": model.pixel_sigma,
+        "velocity_pairing": model.velocity_pairing,
+    }
+    if model.gyro_bias is None:
+        changes["gyro_bias"] = False
+    return config.replace(**changes)
+
+
+def apply_model(seq, config: FilterConfig, model: Model):
+    """``(sequence, config)`` to estimate ``seq`` under ``model``: :func:`model_sequence` and
+    :func:`model_config` together."""
+    return model_sequence(seq, model), model_config(config, model)
