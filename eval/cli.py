@@ -26,6 +26,7 @@ COMMANDS = {
     "run": ("run", "run one estimator on one sequence"),
     "bench": ("bench", "run every estimator on every sequence and compare"),
     "nees": ("nees", "Monte Carlo consistency (NEES) on the simulator"),
+    "calibrate": ("calibrate", "identify the noise model of a drive from the data (no ground truth)"),
 }
 
 

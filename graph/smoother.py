@@ -28,12 +28,14 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 from typing import Callable
 
 import gtsam
 import numpy as np
 
 from ekf.config import FilterConfig
+from ekf.conventions import estimate_cov_to_gtsam
 from ekf.errors import EstimationError, InputError
 from ekf.estimate import Estimate
 from ekf.sequence import Sequence
@@ -188,16 +190,63 @@ def run_smoother(
         raise named_error(exc, "smoother") from None
 
 
-def _run_smoother(
+@dataclass
+class SmootherSolution:
+    """A solved batch graph and what its factors stand for (the smoother's Estimate is built
+    from it; :mod:`graph.identification` reads its residuals and posterior)."""
+
+    cleaned: Sequence
+    cleaning: dict
+    problem: GraphProblem
+    values: gtsam.Values
+    poses: np.ndarray  # (T, 4, 4)
+    landmarks: np.ndarray  # (n_tracks, 3), NaN where no landmark
+    deltas: np.ndarray  # (T-1, 4, 4) the measured motions the factors use (bias removed)
+    twist: np.ndarray  # (T-1, 6) the interval twists (pairing applied, bias not removed)
+    tau: np.ndarray  # (T-1,)
+    noise: NoiseModels
+    pose_prior_cov: np.ndarray  # (6, 6) GTSAM order
+    n_smoothness: int  # twist-smoothness factors in the graph
+    gyro_bias: np.ndarray | None  # (3,) the bias removed or estimated
+    fixed_bias_graph: tuple | None  # (graph, values) with a joint bias fixed, for marginals
+    rejected: np.ndarray
+    source: str
+    timing: dict
+    iterations: list
+    errors: list
+    n_outliers: int
+    n_cheirality: int
+
+    @property
+    def calibration(self):
+        return self.cleaned.calibration
+
+
+def solve_smoother(seq: Sequence, config: FilterConfig = FilterConfig(),
+                   settings: SmootherSettings = SmootherSettings(), *,
+                   initial_poses: np.ndarray | None = None, init: str | None = None,
+                   initial: Estimate | None = None,
+                   progress: Progress | None = None) -> SmootherSolution:
+    """Build and solve the batch graph (steps 1-3 of the module docstring) without the
+    marginals. ``initial_poses`` (T, 4, 4), when given, is the starting trajectory (a warm
+    start, e.g. the previous EM iteration's solution)."""
+    try:
+        return _solve(seq, config, init=init, initial=initial, settings=settings,
+                      progress=progress, initial_poses=initial_poses)
+    except EstimationError as exc:
+        raise named_error(exc, "smoother") from None
+
+
+def _solve(
     seq: Sequence,
-    config: FilterConfig = FilterConfig(),
+    config: FilterConfig,
     *,
-    init: str | None = None,
-    initial: Estimate | None = None,
-    settings: SmootherSettings = SmootherSettings(),
-    progress: Progress | None = None,
-) -> Estimate:
-    """:func:`run_smoother`'s body (its errors not yet named)."""
+    init: str | None,
+    initial: Estimate | None,
+    settings: SmootherSettings,
+    progress: Progress | None,
+    initial_poses: np.ndarray | None = None,
+) -> SmootherSolution:
     timing = {"build_s": 0.0, "initialise_s": 0.0, "optimise_s": 0.0, "marginals_s": 0.0}
     report = progress or (lambda done, total: None)
     start = time.perf_counter()
@@ -211,7 +260,13 @@ def _run_smoother(
     tick = time.perf_counter()
     timing["build_s"] += tick - start
 
-    poses0, source = initial_trajectory(seq, cleaned, config, init, initial, settings)
+    if initial_poses is not None:
+        poses0, source = np.asarray(initial_poses, dtype=float), "given poses"
+        if poses0.shape != (T, 4, 4) or not np.all(np.isfinite(poses0)):
+            raise InputError(f"initial poses must be finite with shape ({T}, 4, 4), "
+                             f"got {poses0.shape}")
+    else:
+        poses0, source = initial_trajectory(seq, cleaned, config, init, initial, settings)
     multi = keep_multi_observed(rows, M)
     rejected += np.bincount(rows.frame[~multi], minlength=T)
     rows = rows.subset(multi)
@@ -283,15 +338,45 @@ def _run_smoother(
         timing["build_s"] += time.perf_counter() - tick
     report(3, 4)
 
-    poses = poses_from_values(values, T)
-    landmarks = landmarks_from_values(values, problem.landmark_tracks, M)
-    est = Estimate.empty("smoother", cleaned.timestamps, M)
-    est.poses = poses
-    est.landmarks = landmarks
+    fixed = None
+    if bias is not None:
+        fixed = fix_bias(problem, values, deltas, noise, bias)
     gyro_bias = b_hat if bias is None else np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
+    twist, tau = interval_twists(cleaned, config.velocity_pairing)
+    return SmootherSolution(
+        cleaned=cleaned, cleaning=cleaning, problem=problem, values=values,
+        poses=poses_from_values(values, T),
+        landmarks=landmarks_from_values(values, problem.landmark_tracks, M),
+        deltas=motion if bias is None else deltas, twist=twist, tau=tau, noise=noise,
+        pose_prior_cov=estimate_cov_to_gtsam(config.initial_pose_cov),
+        n_smoothness=0 if smoothness is None else int(np.count_nonzero(smoothness.gaps)),
+        gyro_bias=gyro_bias, fixed_bias_graph=fixed, rejected=rejected, source=source,
+        timing=timing, iterations=iterations, errors=errors, n_outliers=n_outliers,
+        n_cheirality=n_cheirality,
+    )
+
+
+def _run_smoother(
+    seq: Sequence,
+    config: FilterConfig = FilterConfig(),
+    *,
+    init: str | None = None,
+    initial: Estimate | None = None,
+    settings: SmootherSettings = SmootherSettings(),
+    progress: Progress | None = None,
+) -> Estimate:
+    """:func:`run_smoother`'s body (its errors not yet named): solve, marginals, Estimate."""
+    start = time.perf_counter()
+    report = progress or (lambda done, total: None)
+    sol = _solve(seq, config, init=init, initial=initial, settings=settings, progress=progress)
+    cleaned, problem, rows, timing = sol.cleaned, sol.problem, sol.problem.rows, sol.timing
+    T, M = cleaned.n_frames, cleaned.n_tracks
+    est = Estimate.empty("smoother", cleaned.timestamps, M)
+    est.poses = sol.poses
+    est.landmarks = sol.landmarks
     if settings.compute_marginals:
         tick = time.perf_counter()
-        graph, solution = (problem.graph, values) if bias is None else fix_bias(problem, values, deltas, noise, bias)
+        graph, solution = (problem.graph, sol.values) if sol.fixed_bias_graph is None else sol.fixed_bias_graph
         est.pose_cov, est.landmark_cov = batch_marginals(graph, solution, T, problem.landmark_tracks, M)
         timing["marginals_s"] = time.perf_counter() - tick
     report(4, 4)
@@ -299,23 +384,24 @@ def _run_smoother(
     total = time.perf_counter() - start
     est.step_time_s = np.full(T, total / T)
     est.n_updates = np.bincount(rows.frame, minlength=T).astype(np.int64)
-    est.n_rejected = rejected
+    est.n_rejected = sol.rejected
     first = cleaned.track_first_frame()[problem.landmark_tracks]
     est.n_initialised = np.bincount(first, minlength=T).astype(np.int64)
+    cleaning = dict(sol.cleaning)
     est.info = {
         "estimator": "smoother",
-        "init": source,
+        "init": sol.source,
         "timing": timing,
         "total_s": total,
-        "iterations": int(sum(iterations)),
-        "iterations_per_round": iterations,
-        "initial_error": errors[0][0],
-        "final_error": errors[-1][1],
-        "gyro_bias": None if gyro_bias is None else gyro_bias.tolist(),
+        "iterations": int(sum(sol.iterations)),
+        "iterations_per_round": sol.iterations,
+        "initial_error": sol.errors[0][0],
+        "final_error": sol.errors[-1][1],
+        "gyro_bias": None if sol.gyro_bias is None else sol.gyro_bias.tolist(),
         "n_landmarks": int(problem.landmark_tracks.size),
         "n_stereo_factors": int(len(rows)),
-        "n_outliers_removed": n_outliers,
-        "n_cheirality_dropped": n_cheirality,
+        "n_outliers_removed": sol.n_outliers,
+        "n_cheirality_dropped": sol.n_cheirality,
         "track_origin": cleaning.pop("track_origin"),
         "cleaning": cleaning,
         "settings": settings.to_dict(),

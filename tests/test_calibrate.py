@@ -1,0 +1,134 @@
+"""Issue 12: the noise model identified from the data (EM around the smoother), on simulated
+drives with known truth; the E-step's posterior blocks against gtsam.Marginals; the command."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from ekf.config import FilterConfig
+from ekf.model import Model
+from eval.cli import main
+from eval.simulate import SimConfig, simulate
+from graph.identification import identify_noise
+from graph.settings import SmootherSettings
+
+SETTINGS = SmootherSettings(compute_marginals=False)
+BIAS = (0.005, -0.005, 0.007)
+
+
+def fit(seed, velocity_sigma, gyro_sigma, bias=(0.0, 0.0, 0.0), pairings=("mean",), frames=300,
+        **sim):
+    drive = simulate(SimConfig(seed=seed, n_frames=frames, velocity_sigma=velocity_sigma,
+                               gyro_sigma=gyro_sigma, gyro_bias=bias, **sim))
+    return identify_noise(drive.sequence, FilterConfig(), SETTINGS, pairings=pairings)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_noise_recovered_within_10_percent_at_half_a_metre_per_second(seed):
+    f = fit(seed, 0.5, 0.05)
+    assert f.converged
+    np.testing.assert_allclose(f.velocity_sigma, 0.5, rtol=0.10)
+    np.testing.assert_allclose(f.gyro_sigma, 0.05, rtol=0.10)
+    assert f.pixel_sigma == pytest.approx(1.0, rel=0.10)
+    assert f.gyro_bias is None, f.bias_test  # a drive without a bias: "no bias"
+    assert f.bias_test["decision"] == "no bias"
+
+
+@pytest.mark.slow
+def test_low_noise_bias_within_1_mrad_and_the_known_limit_of_the_mean_pairing():
+    f = fit(2, 0.05, 0.005, BIAS)
+    assert f.bias_test["decision"] == "bias"
+    assert np.max(np.abs(f.gyro_bias - BIAS)) < 1e-3
+    assert f.pixel_sigma == pytest.approx(1.0, rel=0.10)
+    # Well-constrained axes within 10 %; the weakly observed ones (vertical velocity, roll rate)
+    # come out high from the mean pairing's correlated interval noise (graph.identification's
+    # "known limit"): pinned here so that they cannot get worse unnoticed.
+    np.testing.assert_allclose(f.velocity_sigma[:2], 0.05, rtol=0.10)
+    np.testing.assert_allclose(f.gyro_sigma[1:], 0.005, rtol=0.10)
+    assert 0.9 < f.velocity_sigma[2] / 0.05 < 1.35
+    assert 0.9 < f.gyro_sigma[0] / 0.005 < 1.40
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("made_with", ["current", "next"])
+def test_the_pairing_the_data_was_made_with_explains_it_with_the_least_noise(made_with):
+    # Clean velocities (0.05 m/s), where the pairing matters: a wrong one adds the twist's
+    # change over an interval to the noise. (With 0.5 m/s noise the three are within 0.5 %
+    # of each other and the choice does not matter; data made with "mean" at 0.05 m/s is
+    # mis-identified as "next": the known limit of graph.identification.)
+    f = fit(4, 0.05, 0.005, pairings=("current", "next", "mean"), frames=200,
+            velocity_pairing=made_with)
+    assert f.pairing == made_with, f.pairing_scores
+
+
+def test_consecutive_pose_covariances_match_gtsam_marginals():
+    from graph.marginals import pose_chain_covariances
+    from graph.pose_conversions import X
+
+    rng = np.random.default_rng(0)
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[0.01, 0.02, 0.01, 0.1, 0.2, 0.1])
+    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.1)))
+    pose = gtsam.Pose3()
+    for k in range(6):
+        values.insert(X(k), pose)
+        step = gtsam.Pose3.Expmap(rng.normal(0, [0.05, 0.05, 0.05, 1, 0.2, 0.1]))
+        graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), step, noise))
+        pose = pose.compose(step)
+    values.insert(X(6), pose)
+    graph.add(gtsam.BetweenFactorPose3(X(1), X(4), values.atPose3(X(1)).between(values.atPose3(X(4))),
+                                       noise))
+    cov, pair, log_det = pose_chain_covariances(graph, values, 7, np.zeros(0, dtype=int),
+                                                with_log_det=True)
+    marginals = gtsam.Marginals(graph, values)
+    for k in range(6):
+        joint = marginals.jointMarginalCovariance(gtsam.KeyVector([X(k), X(k + 1)])).fullMatrix()
+        np.testing.assert_allclose(cov[k], joint[:6, :6], rtol=1e-8, atol=1e-12)
+        np.testing.assert_allclose(pair[k], joint[:6, 6:], rtol=1e-8, atol=1e-12)
+    H = graph.linearize(values).hessian()[0]
+    assert log_det == pytest.approx(np.linalg.slogdet(H)[1], rel=1e-9)
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("drive")
+    assert main(["simulate", "--out", str(folder), "--frames", "120", "--seed", "6"]) == 0
+    return folder / "sim-seed6.npz"
+
+
+@pytest.mark.slow
+def test_calibrate_writes_a_model_every_command_reads(drive, tmp_path, capsys):
+    model_file = tmp_path / "model.toml"
+    assert main(["calibrate", str(drive), "--out", str(model_file), "--pairings", "mean"]) == 0
+    text = capsys.readouterr().out
+    assert "velocity sigma x y z (m/s)" in text and "cam_T_imu | not identified" in text
+    model = Model.from_toml(model_file)
+    assert model.velocity_pairing == "mean" and 0.3 < model.velocity_sigma[0] < 0.7
+    out = tmp_path / "run"
+    assert main(["run", str(drive), "-e", "ekf-invariant", "--config", str(model_file),
+                 "--out", str(out), "-q"]) == 0
+    import json
+
+    settings = json.loads((out / "settings.json").read_text())
+    assert settings["model"]["velocity_pairing"] == "mean"
+    # a re-run replaces vislam's own model file
+    assert main(["calibrate", str(drive), "--out", str(model_file), "--pairings", "mean"]) == 0
+
+
+def test_calibrate_never_replaces_a_users_file_and_checks_its_flags(drive, tmp_path, capsys):
+    mine = tmp_path / "model.toml"
+    mine.write_text("my own notes\n")
+    for argv, words in (
+        (["--out", str(mine)], "was not written by vislam"),
+        (["--pairings", "mean,sideways"], "--pairings"),
+        (["--max-iterations", "1"], "--max-iterations"),
+        (["--out", str(tmp_path)], "is a folder"),
+    ):
+        assert main(["calibrate", str(drive), *argv]) == 2
+        err = capsys.readouterr().err
+        assert words in err and len(err.strip().splitlines()) == 1
+    assert mine.read_text() == "my own notes\n"
