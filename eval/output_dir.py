@@ -118,6 +118,11 @@ class OutputDir:
             if not anc.is_dir():
                 raise InputError(f"{self._where()}: {anc} is a file, not a folder")
             return
+        with _locked(final.parent):  # a concurrent writer's commit is never seen half done
+            self._check_existing()
+
+    def _check_existing(self) -> None:
+        final = self.final
         owned = self._owned()
         entries = [e for e in _entries(final) if e != MARKER and not e.startswith(_STAGING)]
         if entries and owned is None and not self.force:

@@ -358,3 +358,17 @@ def test_output_dir_checks_name_the_flag(tmp_path):
     os.symlink(tmp_path / "nowhere", tmp_path / "dangling")
     with pytest.raises(InputError, match="broken symbolic link"):
         OutputDir(tmp_path / "dangling").check()
+
+
+@pytest.mark.slow
+def test_eight_vislam_runs_into_one_out_all_succeed(drive_dir, tmp_path):
+    """The issue's case end to end: 8 `vislam run` processes, one --out."""
+    out = tmp_path / "out"
+    procs = [_vislam(["run", str(drive_dir / "drive.npz"), "-e", "dead-reckoning", "--out", str(out),
+                      "-q"], tmp_path) for _ in range(8)]
+    results = [p.communicate(timeout=120) for p in procs]
+    assert [p.returncode for p in procs] == [0] * 8, [err for _, err in results]
+    files = snapshot(out)
+    owned = json.loads(files[MARKER])["files"]
+    assert owned.keys() == set(files) - {MARKER}
+    assert not list(tmp_path.glob(".*staging*")) and not list(out.glob(".*staging*"))
