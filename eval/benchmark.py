@@ -41,7 +41,14 @@ from ekf.errors import EstimationError, InputError
 from ekf.estimate import Estimate
 from ekf.sequence import Observations, Sequence
 from eval.registry import SMOOTHER_INITIAL_FROM, SMOOTHERS, uses_initial
-from eval.runjob import RPE_DEFINITION, JobResult, Progress, run_estimator, trajectory_scores
+from eval.runjob import (
+    RPE_DEFINITION,
+    JobResult,
+    Progress,
+    run_estimator,
+    trajectory_scores,
+)
+from eval.signals import deferred
 from graph.settings import SmootherSettings
 
 log = logging.getLogger(__name__)
@@ -215,11 +222,17 @@ def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
             p.join(timeout=1.0)
 
 
-def _outcome(fut: cf.Future) -> "JobResult | JobFailure":
-    """A finished job's result; a worker that died (killed, out of memory) is a failure."""
+def _outcome(fut: cf.Future, signals) -> "JobResult | JobFailure":
+    """A finished job's result; a worker that died (killed, out of memory) is an error, unless
+    a signal to the whole process group (Ctrl-C, ``timeout``, a job scheduler) killed it: that
+    signal, noted by ``signals`` (eval.signals.Deferred) within a moment, takes precedence."""
     try:
         return fut.result()
     except cf.process.BrokenProcessPool as exc:
+        deadline = time.monotonic() + 0.5
+        while signals.signum is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        signals.check()
         raise EstimationError(f"a worker process died ({exc}); the benchmark cannot go on") from None
 
 
@@ -273,22 +286,27 @@ def run_jobs(
                 key, name, initial = queue.pop(0)
                 queue.extend(record(_job(sequences[key], key, name, config, initial, smoother)))
             return results
-        pool = cf.ProcessPoolExecutor(max_workers=jobs, initializer=_worker_signals)
-        try:
-            pending = {
-                pool.submit(_job, sequences[k], k, n, config, None, smoother)
-                for k in sequences for n in order
-            }
-            while pending:
-                done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-                for fut in done:
-                    for key, name, initial in record(_outcome(fut)):
-                        pending.add(pool.submit(_job, sequences[key], key, name, config, initial,
-                                                smoother))
-        except BaseException:
-            _stop_pool(pool)  # Ctrl-C, SIGTERM, an error: end the workers now, not after their jobs
-            raise
-        pool.shutdown(wait=True)
+        # Signals are deferred while the pool is managed (an exception inside its locks would
+        # break them) and acted on between waits, within a tenth of a second.
+        with deferred() as signals:
+            pool = cf.ProcessPoolExecutor(max_workers=jobs, initializer=_worker_signals)
+            try:
+                pending = {
+                    pool.submit(_job, sequences[k], k, n, config, None, smoother)
+                    for k in sequences for n in order
+                }
+                while pending:
+                    signals.check()
+                    done, pending = cf.wait(pending, timeout=0.1, return_when=cf.FIRST_COMPLETED)
+                    for fut in done:
+                        for key, name, initial in record(_outcome(fut, signals)):
+                            pending.add(pool.submit(_job, sequences[key], key, name, config,
+                                                    initial, smoother))
+                signals.check()
+            except BaseException:
+                _stop_pool(pool)  # Ctrl-C, SIGTERM, an error: end the workers now
+                raise
+            pool.shutdown(wait=True)
         return results
     finally:
         bar.close()

@@ -18,6 +18,7 @@ import signal
 import sys
 
 from ekf.errors import EstimationError, InputError
+from eval.signals import Terminated, raise_terminated
 
 #: subcommand -> (module under eval.commands, one-line help)
 COMMANDS = {
@@ -55,50 +56,43 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING,
-        format="%(levelname)s %(name)s: %(message)s",
-    )
-    previous = _terminate_raises()
+    previous = _terminate_raises()  # first: a SIGTERM during start-up is handled too
+    command = "vislam"
     try:
+        parser = build_parser()  # imports every command's modules: may be interrupted
+        args = parser.parse_args(argv)
+        command = f"vislam {args.command}"
+        logging.basicConfig(
+            level=logging.INFO if args.verbose else logging.WARNING,
+            format="%(levelname)s %(name)s: %(message)s",
+        )
         return int(args._run(args) or 0)
     except (InputError, EstimationError) as exc:
-        print(f"vislam {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # the disk filled up, a folder vanished, ...: nothing was written
         where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
-        print(f"vislam {args.command}: error:{where} {exc.strerror or exc}; nothing written",
+        print(f"{command}: error:{where} {exc.strerror or exc}; nothing written",
               file=sys.stderr)
         return 2
     except MemoryError:
-        print(f"vislam {args.command}: error: out of memory; nothing written", file=sys.stderr)
+        print(f"{command}: error: out of memory; nothing written", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"vislam {args.command}: interrupted; nothing written", file=sys.stderr)
+        print(f"{command}: interrupted; nothing written", file=sys.stderr)
         return 130
     except Terminated:
-        print(f"vislam {args.command}: terminated; nothing written", file=sys.stderr)
+        print(f"{command}: terminated; nothing written", file=sys.stderr)
         return 143
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
 
 
-class Terminated(BaseException):
-    """SIGTERM, raised in the main thread so that every clean-up (``finally``, the output
-    folder's staging, the worker pool) runs as it does for Ctrl-C."""
-
-
-def _on_sigterm(signum, frame):
-    raise Terminated()
-
-
 def _terminate_raises():
     """Install the SIGTERM handler; returns the previous one (None where it cannot be set)."""
     try:
-        return signal.signal(signal.SIGTERM, _on_sigterm)
+        return signal.signal(signal.SIGTERM, raise_terminated)
     except ValueError:  # not the main thread (e.g. main() called from a test's thread)
         return None
 

@@ -251,8 +251,9 @@ def _children(pid: int) -> list[int]:
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("target", ["process", "group"])  # group: a terminal, timeout, a scheduler
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_signal_during_bench_ends_workers_promptly_and_leaves_nothing(tmp_path, sig):
+def test_signal_during_bench_ends_workers_promptly_and_leaves_nothing(tmp_path, sig, target):
     import psutil
 
     out = tmp_path / "bench"
@@ -267,7 +268,10 @@ def test_signal_during_bench_ends_workers_promptly_and_leaves_nothing(tmp_path, 
     time.sleep(1.0)
     assert len(workers) >= 2 and list(tmp_path.glob(".bench.vislam-staging-*"))
     t0 = time.time()
-    proc.send_signal(sig)
+    if target == "group":
+        os.killpg(proc.pid, sig)
+    else:
+        proc.send_signal(sig)
     try:
         _, err = proc.communicate(timeout=10)
     finally:
@@ -277,6 +281,7 @@ def test_signal_during_bench_ends_workers_promptly_and_leaves_nothing(tmp_path, 
     assert elapsed < 2.0, f"took {elapsed:.1f} s to stop"
     assert proc.returncode == (130 if sig == signal.SIGINT else 143), err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert "nothing written" in err, err
     time.sleep(0.2)
     assert not [w for w in workers if psutil.pid_exists(w)
                 and psutil.Process(w).status() != psutil.STATUS_ZOMBIE]
