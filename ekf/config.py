@@ -35,6 +35,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import os
+import stat
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Mapping
@@ -373,9 +375,17 @@ def read_toml(path: str | Path) -> dict:
     (missing, a folder, permission denied, too large), is not UTF-8 or is not valid TOML
     (duplicate keys included)."""
     shown = show_path(path)
+    if not str(path).strip():
+        raise InputError(f"{shown}: empty path, not a settings file")
     try:
+        mode = os.stat(path).st_mode
+        if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):  # a FIFO or device would block
+            raise InputError(f"{shown}: not a regular file (a FIFO, device or socket), "
+                             "not a settings file")
         with Path(path).open("rb") as fh:
             raw = fh.read(MAX_SETTINGS_BYTES + 1)
+    except InputError:
+        raise
     except FileNotFoundError:
         raise InputError(f"{shown}: settings file not found") from None
     except IsADirectoryError:

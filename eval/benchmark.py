@@ -494,6 +494,7 @@ def run_benchmark(
     latest_link: Path | None = None,
     smoother: SmootherSettings | None = None,
     force: bool = False,
+    extra_inputs: tuple = (),
 ) -> BenchOutput:
     """Run, score, plot and write everything into ``out_dir``; ``smoother`` the smoothers'
     settings (defaults when None). The folder is checked before the first job starts and
@@ -505,12 +506,16 @@ def run_benchmark(
     t0 = time.perf_counter()
     by_key = {bs.name: bs.sequence for bs in sequences}
     smoother = smoother if smoother is not None else SmootherSettings()
-    out = OutputDir(out_dir, force=force, inputs=[b.path for b in sequences if b.path],
-                    expected=[*BENCH_FILES, *by_key])
+    inputs = [b.path for b in sequences if b.path]
+    inputs += [getattr(b.gt, "source", None) for b in sequences if b.gt is not None]
+    inputs += list(extra_inputs)
+    out = OutputDir(out_dir, force=force, inputs=inputs, expected=[*BENCH_FILES, *by_key])
     with out as tmp:
         outcomes = run_jobs(by_key, estimators, config, jobs, show_progress, smoother=smoother)
-        results, summary = _write_results(tmp, sequences, estimators, outcomes, config, jobs,
-                                          smoother, settings, t0)
+        with deferred():  # a signal waits until the files are written (matplotlib's C code
+            # must not be cut short), then ends the command and the staging folder goes
+            results, summary = _write_results(tmp, sequences, estimators, outcomes, config, jobs,
+                                              smoother, settings, t0)
     if latest_link is not None:
         atomic_symlink(Path(out_dir).name, latest_link)
     failures = [f"{s['name']} {r['name']}: {r['error']}"

@@ -12,8 +12,10 @@ wrote their results, but an estimator failed (one line per failure on stderr); 1
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
+import os
 import signal
 import sys
 
@@ -57,23 +59,28 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     previous = _terminate_raises()  # first: a SIGTERM during start-up is handled too
-    command = "vislam"
+    os.environ["MPLBACKEND"] = "Agg"  # figures go to files; a bad MPLBACKEND must not matter
+    for stream in (sys.stdout, sys.stderr):  # a path in a message never fails to print
+        with contextlib.suppress(AttributeError, ValueError):
+            stream.reconfigure(errors="backslashreplace")
+    command, out = "vislam", None
     try:
         parser = build_parser()  # imports every command's modules: may be interrupted
         args = parser.parse_args(argv)
-        command = f"vislam {args.command}"
+        command, out = f"vislam {args.command}", getattr(args, "out", None)
         logging.basicConfig(
             level=logging.INFO if args.verbose else logging.WARNING,
             format="%(levelname)s %(name)s: %(message)s",
         )
         return int(args._run(args) or 0)
     except (InputError, EstimationError) as exc:
-        print(f"{command}: error: {exc}", file=sys.stderr)
+        print(f"{command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except OSError as exc:  # the disk filled up, a folder vanished, ...: nothing was written
-        where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
-        print(f"{command}: error:{where} {exc.strerror or exc}; nothing written",
-              file=sys.stderr)
+        where = exc.filename or out
+        where = f" writing {where}:" if where else ""
+        print(f"{command}: error:{_one_line(where)} {_one_line(exc.strerror or exc)}; "
+              "nothing written", file=sys.stderr)
         return 2
     except MemoryError:
         print(f"{command}: error: out of memory; nothing written", file=sys.stderr)
@@ -87,6 +94,11 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _one_line(text) -> str:
+    """A message on one line: newlines (in a path, say) written as \\n."""
+    return str(text).replace("\r", "\\r").replace("\n", "\\n")
 
 
 def _terminate_raises():

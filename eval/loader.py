@@ -94,6 +94,11 @@ KNOWN_KEYS = (
 )
 #: Tolerance of the rigidity check (orthonormality, det, last row).
 RIGID_TOL = 1e-5
+#: Largest velocity component accepted (m/s and rad/s): beyond it a value is no measurement
+#: (a corrupt sample of +300 rad/s is still read, and the estimators cope with it).
+MAX_VELOCITY = 1e4
+#: Largest camera-IMU distance accepted (m), as ekf.model's.
+MAX_LEVER_ARM = 1e3
 #: Both editions' velocity keys agree when they differ by at most this, relative to the
 #: largest absolute value (at least 1).
 VELOCITY_RTOL = 1e-6
@@ -433,6 +438,12 @@ def _velocity(path: Path, key: str, a: np.ndarray, T: int) -> np.ndarray:
             f"but 'time_stamps' has {T}"
         )
     _check_finite(path, key, a)
+    big = np.abs(a) > MAX_VELOCITY
+    if big.any():
+        idx = tuple(int(i) for i in np.argwhere(big)[0])
+        raise InputError(f"{path}: key {key!r} has {int(big.sum())} value(s) beyond "
+                         f"{MAX_VELOCITY:g} in magnitude, first {a[idx]!r} at index {idx}: not a "
+                         "velocity (m/s, rad/s)")
     return a
 
 
@@ -554,6 +565,10 @@ def _calibration(raw: dict[str, np.ndarray], path: Path) -> tuple[np.ndarray, fl
         if not rigid:
             raise InputError(f"{path}: key {tf_key!r} is not a rigid transform "
                              "(rotation not orthonormal with det +1, or last row not 0 0 0 1)")
+        lever = float(np.max(np.abs(tf[:3, 3])))
+        if lever > MAX_LEVER_ARM:
+            raise InputError(f"{path}: key {tf_key!r} has a translation component of {lever:.4g} "
+                             f"m (more than {MAX_LEVER_ARM:g} m between camera and IMU)")
         transforms[tf_key] = tf
     if len(transforms) == 2:
         a, b_key = TRANSFORM_KEYS

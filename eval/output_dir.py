@@ -7,12 +7,15 @@ Every command that writes results (``run``, ``bench``, ``nees``, ``simulate``) g
 * ``--out`` an empty folder, or a folder holding vislam's marker file: it is used.
 * ``--out`` a non-empty folder without the marker: an error, unless ``force``; even then vislam
   never replaces or removes a file it did not write (a name clash is an error).
-* ``--out`` a file, below a file, not writable, or the folder of an input: an error.
+* ``--out`` a file, below a file, not writable, or the folder of an input (the data, its
+  ground truth, a settings file): an error.
 
 The results are built in a hidden staging folder and moved in only when complete, so an error,
 Ctrl-C or SIGTERM leaves ``--out`` as it was. The marker (``.vislam-output.json``) records each
-file vislam wrote with its SHA-256; a later run replaces (and, for a command whose folder holds
-one result, removes) only the files listed there, and only while they are unchanged. Writers of
+file vislam wrote with its SHA-256; a later run replaces only the files listed there, and only
+while they are unchanged. Nothing is ever deleted: files of an earlier run that this run does
+not write again stay (the marker could have been copied or edited by hand, so it is no proof
+that a file is vislam's to delete). Writers of
 the same folder are serialised by an advisory lock (``flock``) on its parent while the staging
 folder is moved in; each file is replaced atomically (``os.replace``).
 """
@@ -49,10 +52,9 @@ class OutputDir:
             ...estimate, then write every file into ``tmp``...
         # on leaving the block without an exception the files are in ``args.out``
 
-    ``exclusive``: the folder holds one result, so files an earlier run wrote that this run
-    does not write again are removed (``run``, ``bench``, ``nees``); ``simulate`` adds drives
-    to a folder and removes nothing. ``expected``: relative paths the command will write
-    (checked for clashes before any work); ``flag`` names the option in messages.
+    ``expected``: relative paths the command will write (checked for clashes before any
+    work); ``inputs``: files the command reads (data, ground truth, settings), whose folders
+    are refused; ``flag`` names the option in messages.
     """
 
     def __init__(
@@ -62,16 +64,18 @@ class OutputDir:
         force: bool = False,
         inputs: Iterable[str | os.PathLike] = (),
         expected: Iterable[str] = (),
-        exclusive: bool = True,
         flag: str = "--out",
     ) -> None:
         self.requested = Path(out)
-        self.final = Path(os.path.abspath(out))
-        self.force = force
-        self.inputs = [Path(os.path.abspath(p)) for p in inputs]
-        self.expected = list(expected)
-        self.exclusive = exclusive
         self.flag = flag
+        try:
+            self.final = Path(os.path.abspath(out))
+        except FileNotFoundError:  # a relative path, and the current folder was deleted
+            raise InputError(f"{flag} {out}: the current folder no longer exists; "
+                             "give an absolute path") from None
+        self.force = force
+        self.inputs = [Path(os.path.abspath(p)) for p in inputs if p is not None and str(p)]
+        self.expected = list(expected)
         self.staging: Path | None = None
         self._created: list[Path] = []
 
@@ -249,11 +253,7 @@ class OutputDir:
             unchanged = target.is_file() and not target.is_symlink() and _sha256(target) == sha
             if not unchanged:
                 continue  # gone, or changed by the user: no longer vislam's
-            if self.exclusive:
-                target.unlink()
-                _prune_empty(target.parent, self.final)
-            else:
-                keep[rel] = sha
+            keep[rel] = sha  # an earlier run's file: left in place (never deleted)
         for rel in sorted(new):
             target = self.final / rel
             target.parent.mkdir(parents=True, exist_ok=True)
@@ -304,15 +304,6 @@ def _write_marker(folder: Path, new: dict[str, str], keep: dict[str, str]) -> No
         "files": dict(sorted(files.items())),
     }, indent=2) + "\n"
     write_text(folder / MARKER, text)
-
-
-def _prune_empty(folder: Path, stop: Path) -> None:
-    while folder != stop and stop in folder.parents:
-        try:
-            folder.rmdir()
-        except OSError:
-            return
-        folder = folder.parent
 
 
 def _remove_tree(path: Path) -> None:

@@ -240,7 +240,7 @@ def test_flags_override_the_file_and_are_checked_after_merging(tmp_path):
     with pytest.raises(InputError, match="settings.toml"):
         filter_config_from_args(_args("--config", str(p), "--pixel-sigma", "3"))
     # an empty --config is a file name like any other, not "no file"
-    with pytest.raises(InputError, match="is a folder"):
+    with pytest.raises(InputError, match="empty path"):
         filter_config_from_args(_args("--config", ""))
 
 

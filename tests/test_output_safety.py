@@ -118,24 +118,57 @@ def test_rerun_replaces_only_vislams_own_unchanged_files(drive_dir, tmp_path, ca
     assert (out / "metrics.json").read_text() == "edited by hand\n"
 
 
-def test_files_of_an_earlier_result_are_removed_only_when_vislams_and_unchanged(tmp_path):
+def test_nothing_is_ever_deleted_and_only_unchanged_vislam_files_are_replaced(tmp_path):
     out = tmp_path / "out"
     with OutputDir(out) as tmp:
         (tmp / "a.txt").write_text("a")
         (tmp / "seq1").mkdir()
         (tmp / "seq1" / "x.tum").write_text("x")
-        (tmp / "seq2").mkdir()
-        (tmp / "seq2" / "y.tum").write_text("y")
-    (out / "seq2" / "y.tum").write_text("changed by the user")
-    (out / "seq1" / "mine.txt").write_text("mine")
+    (out / "seq1" / "x.tum").write_text("changed by the user")
+    (out / "mine.txt").write_text("mine")
     with OutputDir(out) as tmp:
+        (tmp / "a.txt").write_text("a2")
         (tmp / "b.txt").write_text("b")
-    assert snapshot(out).keys() == {"b.txt", "seq1/mine.txt", "seq2/y.tum", MARKER}
-    assert json.loads((out / MARKER).read_text())["files"].keys() == {"b.txt"}
-    # simulate adds to a folder (exclusive=False): earlier files stay vislam's
-    with OutputDir(out, exclusive=False) as tmp:
-        (tmp / "c.txt").write_text("c")
-    assert json.loads((out / MARKER).read_text())["files"].keys() == {"b.txt", "c.txt"}
+    files = snapshot(out)
+    assert files.keys() == {"a.txt", "b.txt", "mine.txt", "seq1/x.tum", MARKER}
+    assert files["a.txt"] == b"a2" and files["seq1/x.tum"] == b"changed by the user"
+    # the changed file is no longer listed as vislam's; the earlier run's a.txt was replaced
+    assert json.loads(files[MARKER])["files"].keys() == {"a.txt", "b.txt"}
+
+
+def test_a_marker_placed_by_hand_never_gets_a_users_file_deleted(drive_dir, tmp_path, capsys):
+    import hashlib
+
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("my notes\n")
+    sha = hashlib.sha256(b"my notes\n").hexdigest()
+    (out / MARKER).write_text(json.dumps({"files": {"notes.txt": sha}}))
+    assert main(["run", str(drive_dir / "drive.npz"), "-e", "dead-reckoning", "--out", str(out),
+                 "-q"]) == 0
+    assert (out / "notes.txt").read_text() == "my notes\n"
+
+
+@pytest.mark.parametrize("which", ["groundtruth", "gt", "config"])
+def test_the_folder_of_any_input_is_refused(which, drive_dir, tmp_path, monkeypatch, capsys):
+    no_estimation(monkeypatch)
+    folder = tmp_path / "inputs"
+    folder.mkdir()
+    argv = ["run", str(drive_dir / "drive.npz"), "-e", "dead-reckoning", "-q", "--force"]
+    if which == "groundtruth":  # the ground truth found next to the data
+        out = drive_dir / "groundtruth"
+    elif which == "gt":
+        (folder / "gt.txt").write_bytes((drive_dir / "groundtruth" / "drive.txt").read_bytes())
+        argv += ["--gt", str(folder / "gt.txt")]
+        out = folder
+    else:
+        (folder / "s.toml").write_text("[filter]\npixel_sigma = 1.0\n")
+        argv += ["--config", str(folder / "s.toml")]
+        out = folder
+    before = snapshot(out)
+    code, err = run_cli([*argv, "--out", str(out)], capsys)
+    assert code == 2 and "folder of the input" in err
+    assert snapshot(out) == before
 
 
 def test_a_failed_or_interrupted_run_leaves_no_trace(tmp_path):

@@ -162,3 +162,43 @@ def test_usage_errors_are_one_line_exit_2(argv, capsys):
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "--help" in err
+
+
+def test_messages_stay_one_line_and_printable(sim_file, tmp_path, capsys, monkeypatch):
+    odd = tmp_path / "new\nline" / "résultats"
+    assert main(["run", str(sim_file), "-e", "dead-reckoning", "--out", str(odd), "--gt", " ",
+                 "-q"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "--gt" in err
+    monkeypatch.setenv("MPLBACKEND", "nosuchbackend")  # the command line draws into files
+    assert main(["bench", "--frames", "20", "-e", "dead-reckoning", "-j", "1", "-q",
+                 "--out", str(tmp_path / "b")]) == 0
+
+
+def test_absurd_but_finite_values_are_refused_naming_the_key(tmp_path, capsys):
+    from eval.loader import read_arrays
+
+    arrays = read_arrays(_small(tmp_path))
+    for key, index, value, words in (("linear_velocity", (0, 3), 1e300, "not a velocity"),
+                                     ("rotational_velocity", (2, 1), -1e300, "not a velocity"),
+                                     ("cam_T_imu", (0, 3), 1e300, "translation")):
+        bad = {k: v.copy() for k, v in arrays.items()}
+        bad[key][index] = value
+        path = tmp_path / f"bad-{key}.npz"
+        _write(path, bad)
+        assert main(["inspect", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert key in err and words in err and len(err.strip().splitlines()) == 1
+
+
+def _small(tmp_path):
+    from eval.simulate import SimConfig, simulate, write_simulation
+
+    return write_simulation(simulate(SimConfig(seed=2, n_frames=10, name="tiny")),
+                            tmp_path / "tiny")["data"]
+
+
+def _write(path, arrays):
+    import numpy as np
+
+    np.savez(path, **arrays)

@@ -51,6 +51,9 @@ def run(args: argparse.Namespace) -> int:
         smoother_settings_from_args,
     )
 
+    if args.estimators is not None and not args.estimators.strip():
+        raise InputError("--estimators: empty; name estimators, or leave the flag out for the "
+                         "default list")
     estimators = parse_estimator_list(args.estimators, DEFAULT_BENCH)
     config = filter_config_from_args(args)
     smoother = smoother_settings_from_args(args)
@@ -77,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
         settings={**environment_settings(),
                   "model": None if model is None else model.to_dict()},
         latest_link=latest, smoother=smoother, force=args.force,
+        extra_inputs=(args.config,),
     )
     if not args.quiet:
         print(result.summary)

@@ -10,6 +10,8 @@ import sys
 from pathlib import Path
 
 NEES_DEFAULT = ("ekf-joint", "ekf-invariant", "smoother")
+#: Most Monte Carlo runs in one call (all runs' drives are held in memory).
+MAX_RUNS = 2000
 #: What ``vislam nees`` writes into its folder.
 NEES_FILES = ("nees.json", "nees.png")
 
@@ -43,15 +45,20 @@ def run(args: argparse.Namespace) -> int:
     from eval.atomic import write_json
     from eval.commands.bench import EXIT_FAILURES
     from eval.output_dir import OutputDir
+    from eval.signals import deferred
     from eval.benchmark import monte_carlo_nees
     from eval.registry import parse_estimator_list
     from eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
 
+    if args.estimators is not None and not args.estimators.strip():
+        raise InputError("--estimators: empty; name estimators, or leave the flag out for the "
+                         "default list")
     estimators = parse_estimator_list(args.estimators, NEES_DEFAULT)
     config = filter_config_from_args(args)
     smoother = smoother_settings_from_args(args)
-    if args.runs < 1:
-        raise InputError(f"--runs must be >= 1, got {args.runs}")
+    if not 1 <= args.runs <= MAX_RUNS:
+        raise InputError(f"--runs must be between 1 and {MAX_RUNS}, got {args.runs} (every run's "
+                         "drive is built up front, about 1 MB each)")
     if args.frames is not None and args.frames < 2:
         raise InputError(f"--frames must be >= 2, got {args.frames}")
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
@@ -60,16 +67,18 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("results") / time.strftime("nees-%Y%m%d-%H%M%S")
 
     t0 = time.perf_counter()
-    with OutputDir(out, force=args.force, expected=NEES_FILES) as tmp:
+    with OutputDir(out, force=args.force, expected=NEES_FILES, inputs=[args.config]) as tmp:
         result = monte_carlo_nees(args.runs, args.seed, estimators, config, frames=args.frames,
                                   jobs=min(jobs, args.runs * len(estimators)),
                                   show_progress=not args.quiet, smoother=smoother)
         result["settings"] = environment_settings()
-        write_json(tmp / "nees.json", result)
-        series = {n: r["nees_pose_over_time"] for n, r in result["estimators"].items()}
-        plots.plot_nees(tmp / "nees.png", series, dof=6, n_runs=args.runs, times=result["timestamps"],
-                        title=f"Pose ANEES over {args.runs} Monte Carlo runs "
-                              f"({result['frames']} frames, seed {args.seed})")
+        with deferred():  # a signal waits until the files are written
+            write_json(tmp / "nees.json", result)
+            series = {n: r["nees_pose_over_time"] for n, r in result["estimators"].items()}
+            plots.plot_nees(tmp / "nees.png", series, dof=6, n_runs=args.runs,
+                            times=result["timestamps"],
+                            title=f"Pose ANEES over {args.runs} Monte Carlo runs "
+                                  f"({result['frames']} frames, seed {args.seed})")
     if not args.quiet:
         print(_table(result))
     print(f"wrote {out} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)

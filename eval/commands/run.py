@@ -42,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from eval.groundtruth import find_ground_truth
     from eval.loader import load_sequence
     from eval.registry import get_estimator
+    from ekf.errors import InputError
     from ekf.model import model_sequence
     from eval.runjob import filter_config_from_args, model_from_args, smoother_settings_from_args
 
@@ -49,13 +50,16 @@ def run(args: argparse.Namespace) -> int:
     get_estimator(args.estimator)
     config = filter_config_from_args(args)
     smoother = smoother_settings_from_args(args)
+    if args.gt is not None and not args.gt.strip():
+        raise InputError("--gt: empty path; give a ground-truth file or leave --gt out")
     model = model_from_args(args)
     seq = load_sequence(args.file, clean=False)
     if model is not None:  # the model's extrinsic and bias act on the data
         seq = model_sequence(seq, model)
     gt = find_ground_truth(args.file, override=args.gt,
                            cam_T_imu=None if model is None else model.cam_T_imu)
-    out = OutputDir(args.out, force=args.force, inputs=[args.file], expected=RUN_FILES)
+    inputs = [args.file, args.config, getattr(gt, "source", None) or args.gt]
+    out = OutputDir(args.out, force=args.force, inputs=inputs, expected=RUN_FILES)
     with out as tmp:
         metrics = _estimate_and_write(args, seq, gt, config, smoother, model, tmp)
     print(_summary_line(metrics, args.out))
@@ -71,6 +75,7 @@ def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path) -> di
         trajectory_scores,
         write_run_outputs,
     )
+    from eval.signals import deferred
 
     with Progress(f"{args.estimator} {seq.name}", total=seq.n_frames, enabled=not args.quiet) as bar:
         job = run_estimator(seq, args.estimator, config, progress=bar, smoother=smoother)
@@ -97,7 +102,8 @@ def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path) -> di
         **({"smoother": smoother.to_dict()} if args.estimator.startswith("smoother") else {}),
         **environment_settings(),
     }
-    write_run_outputs(tmp, seq, est, metrics, settings)
+    with deferred():  # a signal waits until the files are written
+        write_run_outputs(tmp, seq, est, metrics, settings)
     return metrics
 
 

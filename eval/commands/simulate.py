@@ -187,8 +187,7 @@ def run(args: argparse.Namespace) -> int:
     from eval.output_dir import OutputDir
 
     config = config_from_args(args)
-    with OutputDir(args.out, force=args.force, expected=outputs(config.name),
-                   exclusive=False) as tmp:
+    with OutputDir(args.out, force=args.force, expected=outputs(config.name)) as tmp:
         start = time.perf_counter()
         result = simulate(config)
         sim_s = time.perf_counter() - start
