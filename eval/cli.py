@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except OSError as exc:  # the disk filled up, a folder vanished, ...: nothing was written
-        where = exc.filename or out
+        where = exc.filename or (f"--out {out}" if out else None)
         where = f" writing {where}:" if where else ""
         print(f"{command}: error:{_one_line(where)} {_one_line(exc.strerror or exc)}; "
               "nothing written", file=sys.stderr)

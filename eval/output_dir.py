@@ -36,6 +36,7 @@ from typing import Iterable, Iterator
 
 from ekf.errors import InputError
 from eval.atomic import usual_modes, write_text
+from eval.signals import deferred
 
 log = logging.getLogger(__name__)
 
@@ -81,8 +82,15 @@ class OutputDir:
 
     # --- the context manager -------------------------------------------------------------
     def __enter__(self) -> Path:
-        self.check()
-        self.staging = self._make_staging()
+        # Making and recording the staging folder is one step for signals: a SIGTERM between
+        # the two would leave a folder nobody removes.
+        try:
+            with deferred():
+                self.check()
+                self.staging = self._make_staging()
+        except BaseException:
+            self._cleanup()
+            raise
         return self.staging
 
     def __exit__(self, exc_type, exc, tb) -> bool:
@@ -206,6 +214,10 @@ class OutputDir:
             self._created.append(p)
 
     def _cleanup(self) -> None:
+        with deferred():  # a signal waits until the staging folder is gone
+            self._remove_staging()
+
+    def _remove_staging(self) -> None:
         if self.staging is not None and (self.staging.exists() or self.staging.is_symlink()):
             _remove_tree(self.staging)
         self.staging = None
