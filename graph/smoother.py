@@ -140,7 +140,7 @@ def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings) -> t
     try:
         optimizer = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, params)
         initial_error = problem.graph.error(problem.values)
-        result = optimizer.optimize()
+        result = _optimize(optimizer, params)
     except RuntimeError as exc:
         raise estimation_error(exc, "optimising") from None
     final_error = problem.graph.error(result)
@@ -148,6 +148,22 @@ def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings) -> t
         raise EstimationError("smoother failed while optimising: the error is not finite "
                               "(a non-finite measurement or initial value)")
     return result, int(optimizer.iterations()), float(initial_error), final_error
+
+
+def _optimize(optimizer: gtsam.LevenbergMarquardtOptimizer,
+              params: gtsam.LevenbergMarquardtParams) -> gtsam.Values:
+    """GTSAM's ``NonlinearOptimizer::defaultOptimize`` loop, one ``iterate()`` per Python step:
+    the same iterates and stopping rule as ``optimize()``, but Ctrl-C and SIGTERM are acted on
+    after the current iteration instead of after the whole solve (seconds on a real drive)."""
+    if optimizer.error() <= params.getErrorTol():
+        return optimizer.values()
+    while True:
+        current = optimizer.error()
+        optimizer.iterate()
+        new = optimizer.error()
+        if (optimizer.iterations() >= params.getMaxIterations()
+                or gtsam.checkConvergence(params, current, new) or not np.isfinite(current)):
+            return optimizer.values()
 
 
 def _twist_smoothness(poses: np.ndarray, tau: np.ndarray, gaps: np.ndarray,
