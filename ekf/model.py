@@ -75,6 +75,8 @@ from ekf.errors import InputError
 from ekf.geometry import is_rigid
 
 #: Names of the six extrinsic components, in the order of ``cam_T_imu_sigma``.
+#: How every model file vislam writes begins (a file that does not is the user's).
+MODEL_FILE_HEADER = "# The model of a drive (vislam"
 EXTRINSIC_COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")
 #: Rigidity tolerance of ``cam_T_imu`` (the loader's: files carry it to about 1e-7).
 MODEL_RIGID_TOL = 1e-5
@@ -337,7 +339,7 @@ class Model:
     def to_toml(self) -> str:
         """The model as TOML text: a ``[model]`` table and, when the file's values are known,
         a ``[file]`` table. Reads back (``from_toml``) exactly equal."""
-        lines = ["# The model of a drive (vislam, ekf/model.py): noise sigmas per axis x y z",
+        lines = [f"{MODEL_FILE_HEADER}, ekf/model.py): noise sigmas per axis x y z",
                  "# (m/s, rad/s), pixel sigma (px), gyro bias (rad/s, absent: none), velocity",
                  "# pairing, cam_T_imu (rows) and its sigmas (translation m, then rotation rad).",
                  "[model]"]

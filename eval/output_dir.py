@@ -29,7 +29,6 @@ import json
 import logging
 import os
 import shutil
-import signal
 import tempfile
 from pathlib import Path
 from typing import Iterable, Iterator
@@ -133,10 +132,13 @@ class OutputDir:
         with _locked(final.parent):  # a concurrent writer's commit is never seen half done
             self._check_existing()
 
+    def _others(self) -> list[str]:
+        """The folder's entries other than vislam's marker and staging folders."""
+        return [e for e in _entries(self.final) if e != MARKER and not e.startswith(_STAGING)]
+
     def _check_existing(self) -> None:
-        final = self.final
         owned = self._owned()
-        entries = [e for e in _entries(final) if e != MARKER and not e.startswith(_STAGING)]
+        entries = self._others()
         if entries and owned is None and not self.force:
             shown = ", ".join(repr(e) for e in sorted(entries)[:3])
             more = f" and {len(entries) - 3} more" if len(entries) > 3 else ""
@@ -228,12 +230,12 @@ class OutputDir:
 
     # --- commit -----------------------------------------------------------------------------
     def commit(self) -> None:
-        """Move the staged files into place (under the lock, with SIGINT/SIGTERM held back)."""
+        """Move the staged files into place (under the lock, with SIGINT/SIGTERM deferred)."""
         staging = self.staging
         assert staging is not None, "commit() outside the with block"
         new = {rel: _sha256(staging / rel) for rel in _files(staging)}
         usual_modes(staging)
-        with _signals_held(), _locked(self.final.parent):
+        with deferred(), _locked(self.final.parent):  # a signal waits until all is moved in
             if not self.final.exists():
                 if staging.parent == self.final.parent:
                     _write_marker(staging, new, {})
@@ -248,10 +250,7 @@ class OutputDir:
     def _merge(self, new: dict[str, str]) -> None:
         staging = self.staging
         owned = self._owned()
-        entries = [e for e in _entries(self.final)
-                   if e != MARKER and not e.startswith(_STAGING)
-                   and not e.startswith(f".{self.final.name}{_STAGING}")]
-        if owned is None and entries and not self.force:
+        if owned is None and self._others() and not self.force:
             raise InputError(f"{self._where()}: files appeared in the folder while vislam was "
                              "running; nothing was written")
         owned = owned or {}
@@ -311,8 +310,8 @@ def _write_marker(folder: Path, new: dict[str, str], keep: dict[str, str]) -> No
     text = json.dumps({
         "schema": _MARKER_SCHEMA,
         "written_by": "vislam",
-        "note": "files vislam wrote here (path: sha256); vislam replaces or removes only these, "
-                "and only while unchanged",
+        "note": "files vislam wrote here (path: sha256); vislam replaces only these, and only "
+                "while unchanged; it deletes nothing",
         "files": dict(sorted(files.items())),
     }, indent=2) + "\n"
     write_text(folder / MARKER, text)
@@ -339,18 +338,3 @@ def _locked(folder: Path) -> Iterator[None]:
         with contextlib.suppress(OSError):
             fcntl.flock(fd, fcntl.LOCK_UN)
         os.close(fd)
-
-
-@contextlib.contextmanager
-def _signals_held() -> Iterator[None]:
-    """SIGINT and SIGTERM wait until the (short) commit is over, so it is never cut in half."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    except (ValueError, OSError):  # not the main thread of the main interpreter
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)

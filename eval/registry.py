@@ -104,6 +104,15 @@ def parse_estimator_list(text: str | None, default: tuple[str, ...]) -> list[str
     return [n for n in ESTIMATOR_NAMES if n in names]
 
 
+def estimators_from_flag(text: str | None, default: tuple[str, ...]) -> list[str]:
+    """``--estimators``: as :func:`parse_estimator_list`, but an empty value is an error (on
+    the command line it is a mistake; the API's empty string means the default)."""
+    if text is not None and not text.strip():
+        raise InputError("--estimators: empty; name estimators, or leave the flag out for the "
+                         "default list")
+    return parse_estimator_list(text, default)
+
+
 def uses_initial(name: str, smoother: SmootherSettings | None = None) -> bool:
     """Whether estimator ``name`` starts from another estimator's result (the batch smoother,
     when it is initialised from the EKF)."""

@@ -177,8 +177,7 @@ def _gtsam_order(cov6: np.ndarray) -> np.ndarray:
 
 def _sigmas(cfg: FilterConfig) -> np.ndarray:
     """The 7 noise levels EM moves, as logs: velocity (3), gyro (3), pixel."""
-    return np.log(np.r_[np.broadcast_to(cfg.velocity_sigma, 3), np.broadcast_to(cfg.gyro_sigma, 3),
-                        cfg.pixel_sigma])
+    return np.log(np.r_[cfg.velocity_sigmas, cfg.gyro_sigmas, cfg.pixel_sigma])
 
 
 def _with_sigmas(cfg: FilterConfig, theta: np.ndarray) -> FilterConfig:
@@ -197,7 +196,7 @@ def em_noise(seq: Sequence, config: FilterConfig, settings: SmootherSettings, *,
     E-steps taken and whether the log sigmas moved by less than ``rtol``."""
     from graph.smoother import solve_smoother
 
-    state = {"solution": None, "stats": None, "steps": 0}
+    state = {"solution": None, "steps": 0}
 
     def em_step(theta: np.ndarray) -> np.ndarray:
         cfg = _with_sigmas(config, theta)
@@ -205,7 +204,7 @@ def em_noise(seq: Sequence, config: FilterConfig, settings: SmootherSettings, *,
         solution = solve_smoother(seq, cfg, settings,
                                   initial_poses=None if previous is None else previous.poses)
         stats = noise_statistics(solution, cfg)
-        state.update(solution=solution, stats=stats, steps=state["steps"] + 1, cfg=cfg)
+        state.update(solution=solution, steps=state["steps"] + 1)
         g = stats.interval_sigma  # [rot; trans]
         out = np.log(np.r_[g[3:], g[:3], stats.pixel_sigma])
         log.info("EM step %d (%s): velocity %s, gyro %s, pixel %.3f", state["steps"],

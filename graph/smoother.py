@@ -224,7 +224,7 @@ class SmootherSolution:
     pose_prior_cov: np.ndarray  # (6, 6) GTSAM order
     n_smoothness: int  # twist-smoothness factors in the graph
     gyro_bias: np.ndarray | None  # (3,) the bias removed or estimated
-    fixed_bias_graph: tuple | None  # (graph, values) with a joint bias fixed, for marginals
+    bias_model: GyroBiasModel | None  # the joint bias variable's model ("joint"), else None
     rejected: np.ndarray
     source: str
     timing: dict
@@ -354,9 +354,6 @@ def _solve(
         timing["build_s"] += time.perf_counter() - tick
     report(3, 4)
 
-    fixed = None
-    if bias is not None:
-        fixed = fix_bias(problem, values, deltas, noise, bias)
     gyro_bias = b_hat if bias is None else np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
     twist, tau = interval_twists(cleaned, config.velocity_pairing)
     return SmootherSolution(
@@ -366,21 +363,15 @@ def _solve(
         deltas=motion if bias is None else deltas, twist=twist, tau=tau, noise=noise,
         pose_prior_cov=estimate_cov_to_gtsam(config.initial_pose_cov),
         n_smoothness=0 if smoothness is None else int(np.count_nonzero(smoothness.gaps)),
-        gyro_bias=gyro_bias, fixed_bias_graph=fixed, rejected=rejected, source=source,
+        gyro_bias=gyro_bias, bias_model=bias, rejected=rejected, source=source,
         timing=timing, iterations=iterations, errors=errors, n_outliers=n_outliers,
         n_cheirality=n_cheirality,
     )
 
 
-def _run_smoother(
-    seq: Sequence,
-    config: FilterConfig = FilterConfig(),
-    *,
-    init: str | None = None,
-    initial: Estimate | None = None,
-    settings: SmootherSettings = SmootherSettings(),
-    progress: Progress | None = None,
-) -> Estimate:
+def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
+                  initial: Estimate | None, settings: SmootherSettings,
+                  progress: Progress | None) -> Estimate:
     """:func:`run_smoother`'s body (its errors not yet named): solve, marginals, Estimate."""
     start = time.perf_counter()
     report = progress or (lambda done, total: None)
@@ -392,7 +383,8 @@ def _run_smoother(
     est.landmarks = sol.landmarks
     if settings.compute_marginals:
         tick = time.perf_counter()
-        graph, solution = (problem.graph, sol.values) if sol.fixed_bias_graph is None else sol.fixed_bias_graph
+        graph, solution = (problem.graph, sol.values) if sol.bias_model is None else fix_bias(
+            problem, sol.values, sol.deltas, sol.noise, sol.bias_model)
         est.pose_cov, est.landmark_cov = batch_marginals(graph, solution, T, problem.landmark_tracks, M)
         timing["marginals_s"] = time.perf_counter() - tick
     report(4, 4)

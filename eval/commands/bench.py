@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ekf.errors import InputError
     from eval.benchmark import apply_model_to, collect_sequences, default_out_dir, run_benchmark
-    from eval.registry import DEFAULT_BENCH, parse_estimator_list
+    from eval.registry import DEFAULT_BENCH, estimators_from_flag
     from eval.runjob import (
         environment_settings,
         filter_config_from_args,
@@ -51,10 +51,7 @@ def run(args: argparse.Namespace) -> int:
         smoother_settings_from_args,
     )
 
-    if args.estimators is not None and not args.estimators.strip():
-        raise InputError("--estimators: empty; name estimators, or leave the flag out for the "
-                         "default list")
-    estimators = parse_estimator_list(args.estimators, DEFAULT_BENCH)
+    estimators = estimators_from_flag(args.estimators, DEFAULT_BENCH)
     config = filter_config_from_args(args)
     smoother = smoother_settings_from_args(args)
     if args.frames is not None and args.frames < 2:

@@ -18,9 +18,6 @@ from pathlib import Path
 
 import numpy as np
 
-#: First line of a model file vislam writes (a file without it is the user's).
-MODEL_HEADER = "# The model of a drive (vislam"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from eval.runjob import add_filter_arguments
@@ -84,15 +81,16 @@ def run(args: argparse.Namespace) -> int:
 def _check_out(out: Path, force: bool) -> None:
     """``--out`` is a new file, or a model file vislam wrote (or ``--force``)."""
     from ekf.errors import InputError
+    from ekf.model import MODEL_FILE_HEADER
 
     if out.is_dir():
         raise InputError(f"--out {out}: is a folder; give a file name such as model.toml")
     if out.exists() and not force:
         try:
-            head = out.read_text(encoding="utf-8", errors="replace")[:len(MODEL_HEADER)]
+            head = out.read_text(encoding="utf-8", errors="replace")[:len(MODEL_FILE_HEADER)]
         except OSError as exc:
             raise InputError(f"--out {out}: cannot read ({exc.strerror})") from None
-        if head != MODEL_HEADER:
+        if head != MODEL_FILE_HEADER:
             raise InputError(f"--out {out}: exists and was not written by vislam; choose another "
                              "name, or --force to replace it")
     parent = out.parent if str(out.parent) else Path(".")
@@ -106,8 +104,7 @@ def _fmt(values, digits: int = 4) -> str:
 
 def report(name: str, frames: int, fit, config) -> str:
     """The identified model beside the settings it replaces, and a verdict per quantity."""
-    given_v = np.broadcast_to(config.velocity_sigma, 3)
-    given_g = np.broadcast_to(config.gyro_sigma, 3)
+    given_v, given_g = config.velocity_sigmas, config.gyro_sigmas
     lines = [
         f"calibrate {name} ({frames} frames): EM around the smoother, {fit.iterations} steps "
         f"({'converged' if fit.converged else 'NOT converged'}), {fit.seconds:.1f} s",

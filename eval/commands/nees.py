@@ -47,13 +47,10 @@ def run(args: argparse.Namespace) -> int:
     from eval.output_dir import OutputDir
     from eval.signals import deferred
     from eval.benchmark import monte_carlo_nees
-    from eval.registry import parse_estimator_list
+    from eval.registry import estimators_from_flag
     from eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
 
-    if args.estimators is not None and not args.estimators.strip():
-        raise InputError("--estimators: empty; name estimators, or leave the flag out for the "
-                         "default list")
-    estimators = parse_estimator_list(args.estimators, NEES_DEFAULT)
+    estimators = estimators_from_flag(args.estimators, NEES_DEFAULT)
     config = filter_config_from_args(args)
     smoother = smoother_settings_from_args(args)
     if not 1 <= args.runs <= MAX_RUNS:
