@@ -78,14 +78,17 @@ def pose_chain_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Valu
     whole information matrix (the Laplace term of the likelihood)."""
     with threadpool_limits(limits=1, user_api="blas"):
         pose_cov, _, pair_cov, log_det = _schur_marginals(
-            graph, values, n_frames, tracks, int(np.max(tracks, initial=-1)) + 1, pairs=True)
+            graph, values, n_frames, tracks, int(np.max(tracks, initial=-1)) + 1, pairs=True,
+            landmarks=False)
     return (pose_cov, pair_cov, log_det) if with_log_det else (pose_cov, pair_cov)
 
 
 def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
-                    tracks: np.ndarray, n_tracks: int, pairs: bool = False):
+                    tracks: np.ndarray, n_tracks: int, pairs: bool = False,
+                    landmarks: bool = True):
     """Pose (GTSAM convention unless converted by the caller) and landmark marginals; with
-    ``pairs`` also the cross-covariances of consecutive poses (GTSAM convention)."""
+    ``pairs`` also the cross-covariances of consecutive poses (GTSAM convention). Without
+    ``landmarks`` the landmark covariances are left NaN (not computed)."""
     tracks = np.sort(np.asarray(tracks, dtype=np.int64))
     H, n_l = _information(graph, values, n_frames, tracks)
     n_lm = len(tracks)
@@ -170,7 +173,7 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
         pose_cov[p] = new[:6, :6]
         if pairs and p < n_frames - 1:
             pair_cov[p] = new[:6, 6:12]
-        for i in by_first[p]:
+        for i in by_first[p] if landmarks else ():
             a, z = H_lp_csr.indptr[3 * i], H_lp_csr.indptr[3 * i + 3]
             rows = np.repeat(np.arange(3), np.diff(H_lp_csr.indptr[3 * i:3 * i + 4]))
             cols = H_lp_csr.indices[a:z] - j0

@@ -242,13 +242,19 @@ def solve_smoother(seq: Sequence, config: FilterConfig = FilterConfig(),
                    settings: SmootherSettings = SmootherSettings(), *,
                    initial_poses: np.ndarray | None = None, init: str | None = None,
                    initial: Estimate | None = None,
+                   warm_start: "SmootherSolution | None" = None,
                    progress: Progress | None = None) -> SmootherSolution:
     """Build and solve the batch graph (steps 1-3 of the module docstring) without the
-    marginals. ``initial_poses`` (T, 4, 4), when given, is the starting trajectory (a warm
-    start, e.g. the previous EM iteration's solution)."""
+    marginals. ``initial_poses`` (T, 4, 4), when given, is the starting trajectory.
+    ``warm_start``, a solution of the same drive under a nearby model (the previous EM
+    iteration's), gives the starting poses, landmarks and the stereo rows of the first round
+    (the outlier test then looks at every row again, so a row rejected before can come back):
+    LM starts next to its minimum instead of re-fighting the outliers."""
+    if warm_start is not None:
+        initial_poses = warm_start.poses
     try:
         return _solve(seq, config, init=init, initial=initial, settings=settings,
-                      progress=progress, initial_poses=initial_poses)
+                      progress=progress, initial_poses=initial_poses, warm_start=warm_start)
     except EstimationError as exc:
         raise named_error(exc, "smoother") from None
 
@@ -262,6 +268,7 @@ def _solve(
     settings: SmootherSettings,
     progress: Progress | None,
     initial_poses: np.ndarray | None = None,
+    warm_start: SmootherSolution | None = None,
 ) -> SmootherSolution:
     timing = {"build_s": 0.0, "initialise_s": 0.0, "optimise_s": 0.0, "marginals_s": 0.0}
     report = progress or (lambda done, total: None)
@@ -287,11 +294,24 @@ def _solve(
     rejected += np.bincount(rows.frame[~multi], minlength=T)
     rows = rows.subset(multi)
     landmarks0 = triangulate_landmarks(poses0, calib, rows, M)
+    if warm_start is not None:
+        if warm_start.landmarks.shape != (M, 3):
+            raise InputError(f"warm start: landmarks must have shape ({M}, 3), got "
+                             f"{warm_start.landmarks.shape}")
+        known = np.all(np.isfinite(warm_start.landmarks), axis=1)
+        landmarks0[known] = warm_start.landmarks[known]
     in_front = cheirality_ok(poses0, landmarks0, calib, rows, M, settings.min_depth)
     n_cheirality = int(np.sum(~in_front & (np.bincount(rows.track, minlength=M) > 0)))
     keep = in_front[rows.track]
     rejected += np.bincount(rows.frame[~keep], minlength=T)
     rows = rows.subset(keep)
+    candidates = rows  # what the outlier test looks at
+    if warm_start is not None:
+        before = warm_start.problem.rows
+        kept = np.isin(rows.frame.astype(np.int64) * M + rows.track,
+                       before.frame.astype(np.int64) * M + before.track)
+        rows = rows.subset(kept)
+        rows = rows.subset(keep_multi_observed(rows, M))
     timing["initialise_s"] += time.perf_counter() - tick
     report(1, 4)
 
@@ -330,6 +350,10 @@ def _solve(
         tick = time.perf_counter()
         poses = poses_from_values(values, T)
         landmarks = landmarks_from_values(values, problem.landmark_tracks, M)
+        if warm_start is not None and round_ == 0:  # every row is tested again
+            missing = ~np.all(np.isfinite(landmarks), axis=1)
+            landmarks[missing] = landmarks0[missing]
+            rows = candidates
         residual, depth = stereo_residuals(poses, landmarks, calib, rows)
         good = (np.linalg.norm(residual, axis=1) <= settings.outlier_threshold_px) & (depth >= settings.min_depth)
         good_rows = rows.subset(good)
@@ -339,7 +363,7 @@ def _solve(
         if b_hat is not None:  # the bias step of the alternating scheme
             b_hat = estimate_bias(poses, deltas, model.D, motion_covs, config.gyro_bias_sigma, b_hat)
             motion = corrected_deltas(deltas, model.D, b_hat)
-        elif final_keep.all():
+        elif final_keep.all() and len(rows) == len(problem.rows):
             timing["build_s"] += time.perf_counter() - tick
             break
         n_outliers += int(np.sum(~final_keep))

@@ -11,7 +11,7 @@ from ekf.config import FilterConfig
 from ekf.model import Model
 from eval.cli import main
 from eval.simulate import SimConfig, simulate
-from graph.identification import identify_noise
+from graph.identification import identify_model
 from graph.settings import SmootherSettings
 
 SETTINGS = SmootherSettings(compute_marginals=False)
@@ -22,7 +22,7 @@ def fit(seed, velocity_sigma, gyro_sigma, bias=(0.0, 0.0, 0.0), pairings=("mean"
         **sim):
     drive = simulate(SimConfig(seed=seed, n_frames=frames, velocity_sigma=velocity_sigma,
                                gyro_sigma=gyro_sigma, gyro_bias=bias, **sim))
-    return identify_noise(drive.sequence, FilterConfig(), SETTINGS, pairings=pairings)
+    return identify_model(drive.sequence, FilterConfig(), SETTINGS, pairings=pairings, extrinsic=False)
 
 
 @pytest.mark.slow
@@ -105,9 +105,16 @@ def test_calibrate_writes_a_model_every_command_reads(drive, tmp_path, capsys):
     model_file = tmp_path / "model.toml"
     assert main(["calibrate", str(drive), "--out", str(model_file), "--pairings", "mean"]) == 0
     text = capsys.readouterr().out
-    assert "velocity sigma x y z (m/s)" in text and "cam_T_imu | not identified" in text
+    assert "velocity sigma x y z (m/s)" in text and "lever arm: camera in IMU frame" in text
+    assert "file extrinsic: chi-square" in text and "velocity vs vision:" in text
     model = Model.from_toml(model_file)
     assert model.velocity_pairing == "mean" and 0.3 < model.velocity_sigma[0] < 0.7
+    assert model.cam_T_imu_sigma is not None  # the data's uncertainty about the extrinsic
+    # the model holds the file's extrinsic exactly when the verdict says it was kept
+    kept = "file's kept" in text
+    assert kept == bool(np.array_equal(model.cam_T_imu, model.file["cam_T_imu"]))
+    assert main(["calibrate", str(drive), "--pairings", "mean", "--extrinsic", "file"]) == 0
+    assert "cam_T_imu | not identified" in capsys.readouterr().out
     out = tmp_path / "run"
     assert main(["run", str(drive), "-e", "ekf-invariant", "--config", str(model_file),
                  "--out", str(out), "-q"]) == 0

@@ -2,12 +2,17 @@
 
 EM around the batch smoother (:mod:`graph.identification`): per-axis velocity and gyro noise,
 the stereo pixel noise, the velocity pairing with the largest likelihood, and a constant gyro
-bias when a likelihood-ratio test supports one. Prints each value with its standard deviation
+bias when its likelihood ratio passes the BIC. Prints each value with its standard deviation
 beside the settings it would replace, and writes the model as TOML (``--out``, the ``[model]``
 table every command's ``--config`` reads).
 
-The camera-IMU extrinsic is not identified by this version: the model keeps the file's
-``cam_T_imu`` and says so (``cam_T_imu_sigma`` absent).
+The camera-IMU extrinsic is identified too (:mod:`graph.extrinsic`: a variable of the stereo
+factors, with its covariance from the whole drive), unless ``--extrinsic file`` keeps the
+file's. The report gives each component with its sigma beside the file's, the lever arm (the
+camera's position in the IMU frame), names the components the drive cannot determine, and ends
+with a verdict on the file's extrinsic ("file lever arm 2.1 m from the data's: 14 sigma"),
+then the data check of :mod:`graph.data_check` under the identified model: stretches of the
+drive where velocities and vision still disagree beyond their noise.
 """
 
 from __future__ import annotations
@@ -31,17 +36,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="velocity pairings to compare (default current,next,mean)")
     parser.add_argument("--max-iterations", type=int, default=12, metavar="N",
                         help="EM steps per pairing at most (default 12)")
+    parser.add_argument("--extrinsic", choices=("identify", "file"), default="identify",
+                        help="identify the camera-IMU extrinsic (default) or keep the file's")
     add_filter_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from ekf.config import VELOCITY_PAIRINGS
     from ekf.errors import InputError
-    from ekf.model import Model
     from eval.atomic import write_text
     from eval.loader import load_sequence
     from eval.runjob import filter_config_from_args, smoother_settings_from_args
-    from graph.identification import identify_noise
+    from graph.identification import identify_model
 
     config = filter_config_from_args(args)
     smoother = smoother_settings_from_args(args).replace(compute_marginals=False)
@@ -57,21 +63,18 @@ def run(args: argparse.Namespace) -> int:
         _check_out(out, args.force)
     seq = load_sequence(args.file, clean=False)
 
-    fit = identify_noise(seq, config, smoother, pairings=pairings,
-                         max_iterations=args.max_iterations)
-    model = Model(
-        velocity_sigma=tuple(map(float, fit.velocity_sigma)),
-        gyro_sigma=tuple(map(float, fit.gyro_sigma)),
-        pixel_sigma=float(fit.pixel_sigma),
-        velocity_pairing=fit.pairing,
-        cam_T_imu=np.array(seq.calibration.cam_T_imu),
-        gyro_bias=None if fit.gyro_bias is None else tuple(map(float, fit.gyro_bias)),
-        gyro_bias_sigma=None if fit.gyro_bias_std is None else tuple(map(float, fit.gyro_bias_std)),
-        source=f"vislam calibrate {Path(args.file).name} (EM around the smoother; the extrinsic "
-               "is the file's, not identified)",
-        file={"cam_T_imu": np.array(seq.calibration.cam_T_imu)},
-    )
+    fit = identify_model(seq, config, smoother, pairings=pairings,
+                         max_iterations=args.max_iterations,
+                         extrinsic=args.extrinsic == "identify")
+    how = "EM around the smoother" + ("" if args.extrinsic == "identify"
+                                      else "; the extrinsic is the file's, not identified")
+    model = fit.to_model(f"vislam calibrate {Path(args.file).name} ({how})")
     print(report(seq.name, seq.n_frames, fit, config))
+    if fit.solution is not None:  # issue 12's data check, under the identified model
+        from graph.data_check import velocity_check
+
+        print("")
+        print("\n".join(velocity_check(fit.solution, fit.config).lines()))
     if out is not None:
         write_text(out, model.to_toml())
         print(f"wrote {out}", file=sys.stderr)
@@ -102,14 +105,51 @@ def _fmt(values, digits: int = 4) -> str:
     return " ".join(f"{float(v):.{digits}g}" for v in np.atleast_1d(values))
 
 
+def _verdict(fit) -> list[str]:
+    """The file's extrinsic against the identified one, in the data's sigmas."""
+    from ekf.model import EXTRINSIC_COMPONENTS
+    from graph.extrinsic import lever_arm, mahalanobis, theta_between
+
+    if fit.cam_T_imu_cov is None:
+        return []
+    test = fit.extrinsic_test
+    C, F = fit.cam_T_imu, fit.file_cam_T_imu
+    theta = theta_between(C, F)  # file - identified
+    determined = np.array([n not in fit.cam_T_imu_undetermined for n in EXTRINSIC_COMPONENTS])
+    lines = []
+    if test:
+        lines.append(f"file extrinsic: chi-square {test['statistic']:.1f} on {test['dof']} dof "
+                     f"against {test['threshold']:.1f} ({test['level']:.0%}): {test['decision']}")
+    if np.allclose(C, F):
+        return lines
+    for what, part, unit, scale in (("lever arm", slice(0, 3), "m", 1.0),
+                                    ("rotation", slice(3, 6), "deg", 180.0 / np.pi)):
+        mask = np.zeros(6, dtype=bool)
+        mask[part] = determined[part]
+        if not mask.any():
+            lines.append(f"file {what}: the drive cannot determine it; the file's is kept")
+            continue
+        d2, _ = mahalanobis(theta, fit.cam_T_imu_cov, mask)
+        size = (float(np.linalg.norm(lever_arm(F) - lever_arm(C))) if what == "lever arm"
+                else float(np.linalg.norm(theta[3:])) * scale)
+        n_sigma = float(np.sqrt(d2))
+        word = "DISAGREES with" if n_sigma > 3.0 else "agrees with"
+        lines.append(f"file {what} {size:.3g} {unit} from the data's: {n_sigma:.1f} sigma "
+                     f"({word} the data at 3 sigma)")
+    return lines
+
+
 def report(name: str, frames: int, fit, config) -> str:
     """The identified model beside the settings it replaces, and a verdict per quantity."""
+    from ekf.model import EXTRINSIC_COMPONENTS
+    from graph.extrinsic import lever_arm, lever_arm_covariance
+
     given_v, given_g = config.velocity_sigmas, config.gyro_sigmas
     lines = [
         f"calibrate {name} ({frames} frames): EM around the smoother, {fit.iterations} steps "
         f"({'converged' if fit.converged else 'NOT converged'}), {fit.seconds:.1f} s",
         "",
-        "| quantity | identified | sigma | settings as given |",
+        "| quantity | identified | sigma | file / settings as given |",
         "|---|---|---|---|",
         f"| velocity sigma x y z (m/s) | {_fmt(fit.velocity_sigma)} | {_fmt(fit.velocity_sigma_std, 2)} "
         f"| {_fmt(given_v)} |",
@@ -121,14 +161,35 @@ def report(name: str, frames: int, fit, config) -> str:
         f"{'' if fit.gyro_bias_std is None else _fmt(fit.gyro_bias_std, 2)} | "
         f"{'estimated' if config.gyro_bias else 'off'} |",
         f"| velocity pairing | {fit.pairing} | | {config.velocity_pairing} |",
-        "| cam_T_imu | not identified (the file's) | | |",
-        "",
     ]
+    C, F = fit.cam_T_imu, fit.file_cam_T_imu
+    if fit.cam_T_imu_cov is None:
+        lines.append("| cam_T_imu | not identified (the file's) | | |")
+    else:
+        sig = fit.cam_T_imu_sigma
+        sig_t = " ".join("undetermined" if not np.isfinite(x) else f"{x:.2g}" for x in sig[:3])
+        sig_r = " ".join("undetermined" if not np.isfinite(x) else f"{x:.2g}" for x in sig[3:])
+        p_cov = lever_arm_covariance(C, fit.cam_T_imu_cov)
+        lines += [
+            f"| cam_T_imu translation (m) | {_fmt(C[:3, 3])} | {sig_t} | {_fmt(F[:3, 3])} |",
+            f"| cam_T_imu rotation (rotvec, rad; rows below) | | {sig_r} | |",
+            f"| lever arm: camera in IMU frame x y z (m) | {_fmt(lever_arm(C))} | "
+            f"{_fmt(np.sqrt(np.diag(p_cov)), 2)} | {_fmt(lever_arm(F))} |",
+        ]
+        for i in range(3):
+            lines.append(f"| cam_T_imu row {i + 1} | {_fmt(C[i])} | | {_fmt(F[i])} |")
+    lines.append("")
     t = fit.bias_test
     lines.append(f"gyro bias: likelihood ratio {t['statistic']:.1f} against {t['threshold']:.2f} "
-                 f"(chi-square, 3 dof, {t['level']:.0%}): {t['decision']}")
+                 f"(BIC, 3 ln n; chi-square 3 dof {t['level']:.0%}: {t['chi2_threshold']:.2f}): "
+                 f"{t['decision']}")
     scores = ", ".join(f"{p} {s:.2f}" for p, s in sorted(fit.pairing_scores.items(), key=lambda x: x[1]))
     lines.append(f"velocity pairing: sum of log per-sample variance {scores} (lowest wins)")
+    if fit.cam_T_imu_undetermined:
+        names = ", ".join(fit.cam_T_imu_undetermined)
+        lines.append(f"extrinsic: the drive cannot determine {names} "
+                     f"(of {', '.join(EXTRINSIC_COMPONENTS)}); the file's value is kept there")
+    lines += _verdict(fit)
     for what, found, given in (("velocity sigma", fit.velocity_sigma, given_v),
                                ("gyro sigma", fit.gyro_sigma, given_g),
                                ("pixel sigma", [fit.pixel_sigma], [config.pixel_sigma])):
