@@ -1,14 +1,22 @@
-"""`vislam inspect FILE [--gt FILE]`: summarise a data file before estimating.
+"""`vislam inspect FILE [--gt FILE] [--check [--config TOML ...]]`: summarise a data file before
+estimating.
 
 Prints frames and timing, tracks and observations, the invalid observations the loader dropped
 (partial or negative pixel coordinates, :mod:`eval.loader`), the repeated-observation events
 and bad disparities that the cleaning step repairs (:mod:`ekf.cleaning`), far points, velocity
 statistics, and whether ground truth was found.
+
+``--check`` then solves the batch smoother under the settings (``--config`` and the estimator
+flags, as ``vislam run`` takes them; a ``[model]`` table's extrinsic and gyro bias applied to
+the data) and says where the velocities and the vision disagree beyond their noise, stretch by
+stretch (:mod:`graph.data_check`): a wrong file is flagged before anyone trusts a score. The
+estimator settings are accepted only with ``--check``.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +31,9 @@ FAR_DEPTH = 80.0
 TINY_DISPARITY = 1.0
 #: Event frames listed in full up to this many.
 MAX_FRAMES_LISTED = 40
+#: ``--check``: default length (s) of a stretch and the test level per stretch.
+CHECK_STRETCH_S = 10.0
+CHECK_LEVEL = 0.999
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,6 +42,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--gt", type=Path, default=None,
         help="ground-truth pose file (KITTI format); default DIR/groundtruth/NAME.txt",
     )
+    parser.add_argument(
+        "--check", action="store_true",
+        help="also solve the smoother and check that velocities and vision agree within their "
+             "noise, per stretch of the drive (takes as long as a smoother run)",
+    )
+    parser.add_argument(
+        "--stretch", metavar="S", default=None,
+        help=f"--check: length of a stretch in seconds (default {CHECK_STRETCH_S:g})",
+    )
+    from eval.runjob import add_filter_arguments
+
+    before = {a.dest for a in parser._actions}
+    add_filter_arguments(parser)
+    # The estimator settings mean something only to --check (run() refuses them otherwise).
+    parser.set_defaults(_check_settings=tuple(
+        a.dest for a in parser._actions if a.dest not in before) + ("stretch",))
 
 
 def _mmm(values: np.ndarray, fmt: str = "{:.3g}") -> str:
@@ -141,7 +168,71 @@ def summarise(path: Path, gt_path: Path | None = None) -> list[str]:
     return lines
 
 
+def _check_inputs(args: argparse.Namespace):
+    """``--check``'s settings, every one checked before anything is printed:
+    ``(config, smoother settings, model or None, stretch_s)``; InputError otherwise."""
+    from ekf.errors import InputError
+    from eval.runjob import (
+        filter_config_from_args,
+        model_from_args,
+        smoother_settings_from_args,
+    )
+
+    given = [d for d in getattr(args, "_check_settings", ())
+             if getattr(args, d, None) not in (None, False)]
+    if not args.check:
+        if given:
+            flag = "--" + given[0].replace("_", "-")
+            raise InputError(f"{flag}: estimator settings are used only by the velocity check; "
+                             "add --check, or leave them out")
+        return None
+    stretch = CHECK_STRETCH_S
+    if args.stretch is not None:
+        try:
+            stretch = float(args.stretch)
+        except ValueError:
+            stretch = float("nan")
+        if not (np.isfinite(stretch) and 0.0 < stretch <= 1e6):
+            raise InputError(f"--stretch: must be a positive number of seconds, got "
+                             f"{args.stretch!r}")
+    config = filter_config_from_args(args)
+    settings = smoother_settings_from_args(args).replace(compute_marginals=False)
+    model = model_from_args(args)
+    return config, settings, model, stretch
+
+
+def check_lines(path: Path, config, settings, model=None, *, stretch_s: float = CHECK_STRETCH_S,
+                level: float = CHECK_LEVEL) -> list[str]:
+    """The lines of ``--check``: the drive solved by the smoother under ``config`` (a model's
+    extrinsic and gyro bias applied to the data first) and its velocity check."""
+    from ekf.model import model_sequence
+    from eval.loader import load_sequence
+    from graph.data_check import velocity_check
+    from graph.smoother import solve_smoother
+
+    def fmt(values) -> str:
+        return ",".join(f"{x:.3g}" for x in values)
+
+    seq = load_sequence(path, clean=False)
+    if model is not None:  # its noise model is in config already (filter_config_from_args)
+        seq = model_sequence(seq, model)
+    solution = solve_smoother(seq, config, settings)
+    check = velocity_check(solution, config, stretch_s=stretch_s, level=level)
+    where = "the file's" if model is None else "the model's"
+    head = (f"velocity check: smoother under velocity sigma {fmt(config.velocity_sigmas)} m/s, "
+            f"gyro sigma {fmt(config.gyro_sigmas)} rad/s per interval, pairing "
+            f"{config.velocity_pairing}, {where} extrinsic"
+            + ("" if model is None or model.gyro_bias is None else ", the model's gyro bias"))
+    return [head, *check.lines()]
+
+
 def run(args: argparse.Namespace) -> int:
+    check = _check_inputs(args)
     for line in summarise(args.file, args.gt):
         print(line)
+    if check is not None:
+        config, settings, model, stretch = check
+        sys.stdout.flush()  # the summary shows while the smoother runs
+        for line in check_lines(args.file, config, settings, model, stretch_s=stretch):
+            print(line)
     return 0
