@@ -10,7 +10,8 @@ Steps, each timed (``est.info["timing"]``):
    of the shared drives) a twist-smoothness prior (:mod:`graph.twist_smoothness`) predicts the
    motion from the two neighbouring intervals, with a sigma measured on the drive itself. A
    constant gyro bias (:mod:`graph.gyro_bias`) is estimated from the initial trajectory and
-   removed from every motion factor (``settings.gyro_bias="alternate"``), or estimated jointly
+   removed from every motion factor (``settings.gyro_bias="alternate"``; not when
+   ``config.gyro_bias`` is False, as for the EKFs), or estimated jointly
    as a graph variable (``"joint"``, slower).
 3. *optimise* with LM; then re-estimate the bias (and the smoothness sigma, relinearising the
    prior) from the solution, remove stereo factors whose residual exceeds
@@ -324,7 +325,9 @@ def _solve(
     bias = None  # the joint bias variable ("joint")
     b_hat = None  # the bias the motion factors are corrected for ("alternate")
     motion = deltas
-    if settings.gyro_bias != "off":
+    # config.gyro_bias=False (a model saying the data has none, --no-gyro-bias): none here
+    # either, as in the EKFs.
+    if settings.gyro_bias != "off" and config.gyro_bias:
         twists, tau = interval_twists(cleaned, config.velocity_pairing)
         model = GyroBiasModel.create(twists, tau, config.gyro_bias_sigma)
         if settings.gyro_bias == "joint":
