@@ -66,7 +66,11 @@ ESTIMATOR_KEYS = (
     "nees_landmark_mean", "vs_smoother",
 )
 VS_SMOOTHER_KEYS = ("ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean", "inside_95_fraction")
-SEQUENCE_KEYS = ("name", "path", "frames", "has_ground_truth", "has_landmark_truth", "estimators")
+SEQUENCE_KEYS = ("name", "path", "frames", "has_ground_truth", "has_landmark_truth", "model",
+                 "estimators")
+#: How a drive's model was chosen: identified from the data (the default, cached), given in
+#: the --config file's [model] table, or the file's values and the settings as given.
+MODEL_MODES = ("identified", "config", "as-given")
 
 
 @dataclass(frozen=True)
@@ -88,6 +92,8 @@ class BenchSequence:
     gt: object | None = None  # .frames, .poses (eval.groundtruth.GroundTruth or KnownTruth)
     landmark_truth: np.ndarray | None = None  # (n_tracks, 3) per source track
     origin: dict | None = None  # how it was made (simulation settings)
+    config: FilterConfig | None = None  # the filter settings under this drive's model
+    model: dict | None = None  # the model in use, as results.json records it (MODEL_MODES)
 
 
 @dataclass
@@ -170,19 +176,66 @@ def collect_sequences(paths: list[str], frames: int | None = None, seed: int = 0
     return seqs
 
 
-def apply_model_to(sequences: list[BenchSequence], model) -> list[BenchSequence]:
+def apply_model_to(sequences: list[BenchSequence], model, config: FilterConfig | None = None,
+                   mode: str = "config", record: dict | None = None) -> list[BenchSequence]:
     """Each drive under ``model`` (ekf.model.Model): its extrinsic and gyro bias applied to the
-    data, and its ground truth converted with the model's extrinsic (a simulated drive's truth
-    is already in the IMU frame)."""
-    from ekf.model import model_sequence
+    data, its ground truth converted with the model's extrinsic (a simulated drive's truth
+    is already in the IMU frame) and, with ``config``, the filter settings under the model
+    (:func:`ekf.model.model_config`). ``mode`` and ``record`` go to results.json."""
+    from ekf.model import model_config, model_sequence
 
     out = []
     for bs in sequences:
         gt = bs.gt
-        if gt is not None and hasattr(gt, "with_extrinsic"):
-            gt = gt.with_extrinsic(model.cam_T_imu, source="model")
-        out.append(dataclasses.replace(bs, sequence=model_sequence(bs.sequence, model), gt=gt))
+        converted = gt is not None and hasattr(gt, "with_extrinsic")
+        if converted:
+            gt = gt.with_extrinsic(model.cam_T_imu, source=f"model ({mode})")
+        entry = {"mode": mode, **(record or {}), "model": model.to_dict(),
+                 "ground_truth_extrinsic": (f"the model's ({mode})" if converted else
+                                            "none needed (truth in the IMU frame)" if gt is not None
+                                            else None)}
+        out.append(dataclasses.replace(
+            bs, sequence=model_sequence(bs.sequence, model), gt=gt, model=entry,
+            config=None if config is None else model_config(config, model)))
     return out
+
+
+def as_given(sequences: list[BenchSequence]) -> list[BenchSequence]:
+    """Each drive with the file's values and the settings as given (``--model as-given``)."""
+    out = []
+    for bs in sequences:
+        entry = {"mode": "as-given", "model": None,
+                 "cam_T_imu": np.asarray(bs.sequence.calibration.cam_T_imu).tolist(),
+                 "ground_truth_extrinsic": None if bs.gt is None else "the file's"}
+        out.append(dataclasses.replace(bs, model=entry))
+    return out
+
+
+def identify_models(sequences: list[BenchSequence], config: FilterConfig,
+                    smoother: SmootherSettings, *,
+                    on_start: Callable[[BenchSequence], None] | None = None) -> list[BenchSequence]:
+    """Each drive under the model identified from its own data
+    (:func:`eval.model_cache.identified_model`, cached by content); ``on_start(bs)`` is called
+    before a drive's identification runs (not when the cache has it)."""
+    from eval.model_cache import cache_dir, identified_model
+
+    out = []
+    for bs in sequences:
+        if on_start is not None and not (cache_dir() / f"{cache_key_for(bs, config, smoother)}.toml").is_file():
+            on_start(bs)
+        found = identified_model(bs.sequence, config, smoother)
+        record = {"cached": found.cached, "cache_entry": None if found.path is None else str(found.path),
+                  "identification": found.report}
+        out += apply_model_to([bs], found.model, config, "identified", record)
+    return out
+
+
+def cache_key_for(bs: BenchSequence, config: FilterConfig, smoother: SmootherSettings) -> str:
+    from ekf.config import VELOCITY_PAIRINGS
+    from eval.model_cache import cache_key
+
+    return cache_key(bs.sequence, config, smoother.replace(compute_marginals=False),
+                     tuple(VELOCITY_PAIRINGS))
 
 
 # --- jobs ------------------------------------------------------------------------------------
@@ -243,7 +296,7 @@ def _initialiser(estimators: list[str]) -> str | None:
 def run_jobs(
     sequences: dict[str, Sequence],
     estimators: list[str],
-    config: FilterConfig,
+    config: "FilterConfig | dict[str, FilterConfig]",
     jobs: int = 1,
     show_progress: bool = True,
     on_result: Callable[[JobResult | JobFailure], None] | None = None,
@@ -253,7 +306,9 @@ def run_jobs(
 
     The smoother waits for its initialiser EKF on the same sequence (if that EKF is among
     ``estimators`` and ``smoother.init`` is ``"ekf"``) and starts from its estimate.
+    ``config`` is one FilterConfig for every sequence, or one per sequence key.
     """
+    configs = config if isinstance(config, dict) else {k: config for k in sequences}
     init_name = _initialiser(estimators)
     waiting = {n for n in estimators if uses_initial(n, smoother) and init_name is not None}
     # The initialiser first, so the smoother can start as early as possible; the smoother last.
@@ -284,7 +339,7 @@ def run_jobs(
             queue = [(k, n, None) for k in sequences for n in order]
             while queue:
                 key, name, initial = queue.pop(0)
-                queue.extend(record(_job(sequences[key], key, name, config, initial, smoother)))
+                queue.extend(record(_job(sequences[key], key, name, configs[key], initial, smoother)))
             return results
         # Signals are deferred while the pool is managed (an exception inside its locks would
         # break them) and acted on between waits, within a tenth of a second.
@@ -292,7 +347,7 @@ def run_jobs(
             pool = cf.ProcessPoolExecutor(max_workers=jobs, initializer=_worker_signals)
             try:
                 pending = {
-                    pool.submit(_job, sequences[k], k, n, config, None, smoother)
+                    pool.submit(_job, sequences[k], k, n, configs[k], None, smoother)
                     for k in sequences for n in order
                 }
                 while pending:
@@ -300,7 +355,7 @@ def run_jobs(
                     done, pending = cf.wait(pending, timeout=0.1, return_when=cf.FIRST_COMPLETED)
                     for fut in done:
                         for key, name, initial in record(_outcome(fut, signals)):
-                            pending.add(pool.submit(_job, sequences[key], key, name, config,
+                            pending.add(pool.submit(_job, sequences[key], key, name, configs[key],
                                                     initial, smoother))
                 signals.check()
             except BaseException:
@@ -357,6 +412,7 @@ def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict) -> 
         "frames": bs.sequence.n_frames,
         "has_ground_truth": bs.gt is not None,
         "has_landmark_truth": bs.landmark_truth is not None,
+        "model": bs.model,
         "reference_smoother": ref,
         "estimators": rows,
     }
@@ -511,7 +567,8 @@ def run_benchmark(
     inputs += list(extra_inputs)
     out = OutputDir(out_dir, force=force, inputs=inputs, expected=[*BENCH_FILES, *by_key])
     with out as tmp:
-        outcomes = run_jobs(by_key, estimators, config, jobs, show_progress, smoother=smoother)
+        configs = {bs.name: bs.config if bs.config is not None else config for bs in sequences}
+        outcomes = run_jobs(by_key, estimators, configs, jobs, show_progress, smoother=smoother)
         with deferred():  # a signal waits until the files are written (matplotlib's C code
             # must not be cut short), then ends the command and the staging folder goes
             results, summary = _write_results(tmp, sequences, estimators, outcomes, config, jobs,
@@ -553,7 +610,10 @@ def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smo
         "jobs": jobs,
         "filter": config.to_dict(),
         "smoother": smoother.to_dict(),
-        "sequences": [{"name": b.name, "path": b.path, **(b.origin or {})} for b in sequences],
+        "sequences": [{"name": b.name, "path": b.path, **(b.origin or {}),
+                       "model": b.model,
+                       "filter": None if b.config is None else b.config.to_dict()}
+                      for b in sequences],
         **(settings or {}),
     })
     return results, summary

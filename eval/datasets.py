@@ -12,6 +12,8 @@ from pathlib import Path
 
 #: Environment variable that overrides the data folder.
 DATA_ENV = "VISLAM_DATA"
+#: Environment variable that overrides the folder of the 2019 edition (clean velocities).
+DATA_2019_ENV = "VISLAM_DATA_2019"
 #: The drives shared with the project (file stems), in the paper's order.
 SHARED_DRIVES = ("0022", "0027", "0034")
 
@@ -27,6 +29,15 @@ def data_dir() -> Path:
     if env:
         return Path(env).expanduser()
     return (repo_root().parent / "shared" / "data" / "kitti-pr3").resolve()
+
+
+def data_dir_2019() -> Path:
+    """The folder of the 2019 edition of the drives (``$VISLAM_DATA_2019``, else
+    ``../shared/data/kitti-pr3-2019``; it may not exist)."""
+    env = os.environ.get(DATA_2019_ENV)
+    if env:
+        return Path(env).expanduser()
+    return (repo_root().parent / "shared" / "data" / "kitti-pr3-2019").resolve()
 
 
 def drive_path(name: str, directory: Path | None = None) -> Path:

@@ -82,3 +82,17 @@ def load_drive(drive_path):
 def shared_drive(request, drive_path) -> Path:
     """Each shared drive in turn (0022, 0027, 0034)."""
     return drive_path(request.param)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def model_cache(tmp_path_factory):
+    """Identified models (``vislam bench``'s default, eval.model_cache) are kept in a folder of
+    this test session, never in the user's cache: a drive is identified once per session."""
+    folder = tmp_path_factory.mktemp("vislam-model-cache")
+    previous = os.environ.get("VISLAM_CACHE_DIR")
+    os.environ["VISLAM_CACHE_DIR"] = str(folder)
+    yield folder
+    if previous is None:
+        os.environ.pop("VISLAM_CACHE_DIR", None)
+    else:
+        os.environ["VISLAM_CACHE_DIR"] = previous

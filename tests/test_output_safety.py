@@ -265,8 +265,8 @@ def test_eight_concurrent_writers_of_one_folder(tmp_path):
     assert not [p for p in tmp_path.rglob(".*staging*")]
 
 
-def _vislam(args: list[str], cwd: Path) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "MPLBACKEND": "Agg"}
+def _vislam(args: list[str], cwd: Path, env: dict | None = None) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "MPLBACKEND": "Agg", **(env or {})}
     return subprocess.Popen(
         [sys.executable, "-c", "import sys; from eval.cli import main; sys.exit(main())", *args],
         cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -290,8 +290,9 @@ def test_signal_during_bench_ends_workers_promptly_and_leaves_nothing(tmp_path, 
     import psutil
 
     out = tmp_path / "bench"
+    # as-given: straight to the workers (the default identifies the model first, in this process)
     proc = _vislam(["bench", "--frames", "3000", "-e", "ekf-joint,ekf-invariant", "-j", "2",
-                    "--out", str(out), "-q"], tmp_path)
+                    "--model", "as-given", "--out", str(out), "-q"], tmp_path)
     deadline = time.time() + 60
     workers: list[int] = []
     while time.time() < deadline and len(workers) < 2:  # both workers busy estimating
@@ -410,3 +411,21 @@ def test_eight_vislam_runs_into_one_out_all_succeed(drive_dir, tmp_path):
     owned = json.loads(files[MARKER])["files"]
     assert owned.keys() == set(files) - {MARKER}
     assert not list(tmp_path.glob(".*staging*")) and not list(out.glob(".*staging*"))
+
+
+@pytest.mark.slow
+def test_signal_during_model_identification_leaves_nothing(tmp_path):
+    """SIGTERM while bench identifies the drive's model (before any worker): exit 143, one
+    line, no output folder, no cache entry half-written."""
+    cache = tmp_path / "cache"
+    out = tmp_path / "bench"
+    proc = _vislam(["bench", "--frames", "3000", "-e", "ekf-joint", "-j", "1", "--out", str(out),
+                    "-q"], tmp_path, env={"VISLAM_CACHE_DIR": str(cache)})
+    time.sleep(4.0)  # simulating 3000 frames, then EM around the smoother
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert not out.exists() or not any(out.iterdir())
+    assert not cache.exists() or not any(cache.iterdir())

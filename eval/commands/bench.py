@@ -37,12 +37,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"length of the default simulated drive (default {DEFAULT_BENCH_FRAMES})")
     parser.add_argument("--seed", type=int, default=0, help="seed of the default simulated drive")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bars, no table")
+    parser.add_argument("--model", choices=("identify", "as-given"), default="identify",
+                        help="identify: every estimator runs under the model identified from "
+                             "each drive's own data (noise, gyro bias, pairing, extrinsic; "
+                             "cached by content, see 'vislam calibrate'), the default; as-given: "
+                             "the file's extrinsic and the settings as given (the paper's). A "
+                             "[model] table in --config is used as it is")
     add_filter_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from ekf.errors import InputError
-    from eval.benchmark import apply_model_to, collect_sequences, default_out_dir, run_benchmark
+    from eval.benchmark import (
+        apply_model_to,
+        as_given,
+        collect_sequences,
+        default_out_dir,
+        identify_models,
+        run_benchmark,
+    )
+    from eval.model_cache import cache_dir
     from eval.registry import DEFAULT_BENCH, estimators_from_flag
     from eval.runjob import (
         environment_settings,
@@ -64,7 +78,16 @@ def run(args: argparse.Namespace) -> int:
     model = model_from_args(args)
     sequences = collect_sequences(args.paths, frames=args.frames, seed=args.seed)
     if model is not None:
-        sequences = apply_model_to(sequences, model)
+        sequences = apply_model_to(sequences, model, None, "config",
+                                   {"source": str(args.config)})
+    elif args.model == "identify":
+        def announce(bs) -> None:
+            if not args.quiet:
+                print(f"identifying the model of {bs.name} from its data (once: kept in "
+                      f"{cache_dir()})", file=sys.stderr)
+        sequences = identify_models(sequences, config, smoother, on_start=announce)
+    else:
+        sequences = as_given(sequences)
     jobs = min(jobs, len(sequences) * len(estimators))
 
     if args.out:
@@ -74,8 +97,8 @@ def run(args: argparse.Namespace) -> int:
         latest = Path("results") / "latest"
     result = run_benchmark(
         sequences, estimators, config, out, jobs=jobs, show_progress=not args.quiet,
-        settings={**environment_settings(),
-                  "model": None if model is None else model.to_dict()},
+        settings={**environment_settings(), "model_mode": "config" if model is not None
+                  else args.model},
         latest_link=latest, smoother=smoother, force=args.force,
         extra_inputs=(args.config,),
     )

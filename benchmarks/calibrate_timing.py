@@ -1,0 +1,37 @@
+"""How long `vislam calibrate` (model identification, issue 12) takes on each drive given.
+
+    .venv/bin/python benchmarks/calibrate_timing.py ../shared/data/kitti-pr3/0034.npz [...]
+
+Prints, per drive: frames, seconds of identification (EM around the smoother with the
+extrinsic, the pairing comparison and the bias test; loading excluded), E-steps, and the
+identified linear velocity sigmas and lever arm. The issue's budget: 0034 in at most 60 s.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+
+def main(paths: list[str]) -> int:
+    from ekf.config import FilterConfig
+    from eval.loader import load_sequence
+    from graph.extrinsic import lever_arm
+    from graph.identification import identify_model
+    from graph.settings import SmootherSettings
+
+    for path in paths:
+        seq = load_sequence(path, clean=False)
+        t0 = time.perf_counter()
+        fit = identify_model(seq, FilterConfig(), SmootherSettings(compute_marginals=False))
+        seconds = time.perf_counter() - t0
+        print(f"{path}: {seq.n_frames} frames, {seconds:.1f} s, {fit.iterations} E-steps, "
+              f"velocity sigma {np.round(fit.velocity_sigma, 3)}, pairing {fit.pairing}, "
+              f"lever arm {np.round(lever_arm(fit.cam_T_imu), 3)}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:] or ["../shared/data/kitti-pr3/0034.npz"]))

@@ -1,0 +1,131 @@
+"""Accuracy of ``vislam bench``'s default, every estimator under the model identified from the
+drive's own data (issue 12), on both published editions of KITTI drive 0027 against the same
+ground truth (converted with the identified extrinsic, as the benchmark does):
+
+* ``kitti-pr3/0027.npz``: noisy velocities (0.5 m/s, 0.05 rad/s per sample, gyro offsets), many
+  tracks;
+* ``kitti-pr3-2019/0027.npz``: clean velocities, about 3 tracks per frame.
+
+Same code, same defaults, nothing chosen per file. Bounds: measured x 1.1 (so that a regression
+fails), and the issue's targets where they are met (shared edition). The identification itself
+is pinned too: the linear velocity sigma of the shared edition (its README: 0.5 m/s) and the
+verdict that the file's extrinsic is refuted by the data (both editions).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from tests.regression.breaks import skip_or_fail
+
+pytestmark = [pytest.mark.slow, pytest.mark.realdata]
+
+ESTIMATORS = ("dead-reckoning", "ekf-joint", "ekf-invariant", "smoother")
+MARGIN = 1.10
+#: edition -> estimator -> measured (aligned ATE m, t_rel %) under the identified model
+MEASURED = {
+    "kitti-pr3": {
+        "dead-reckoning": (3.56, 3.39),
+        "ekf-joint": (5.65, 2.71),
+        "ekf-invariant": (5.63, 2.69),
+        "smoother": (2.61, 1.45),
+    },
+    # The issue's aim here (every SLAM estimator within 1.1x dead reckoning's ATE) is not met:
+    # smoother 1.26x, EKFs 2.3x (see the closing note of issue 12); pinned as measured.
+    "kitti-pr3-2019": {
+        "dead-reckoning": (0.74, 0.82),
+        "ekf-joint": (1.73, 1.04),
+        "ekf-invariant": (1.73, 1.05),
+        "smoother": (0.93, 0.90),
+    },
+}
+#: The issue's targets on the shared edition (met): better EKF aligned ATE and smoother t_rel.
+TARGET_EKF_ATE_M = 5.9
+TARGET_SMOOTHER_T_REL = 1.55
+
+
+def _bench(path, regression_config):
+    from eval.benchmark import identify_models, load_bench_sequence, run_jobs
+    from eval.runjob import JobResult, trajectory_scores
+
+    if not path.is_file():
+        skip_or_fail(f"{path} not found")
+    bs = load_bench_sequence(path)
+    if bs.gt is None:
+        skip_or_fail(f"no ground truth for {path}")
+    t0 = time.perf_counter()
+    (bs,) = identify_models([bs], regression_config, _smoother())
+    t1 = time.perf_counter()
+    outcomes = run_jobs({bs.name: bs.sequence}, list(ESTIMATORS), {bs.name: bs.config},
+                        jobs=2, show_progress=False)
+    print(f"\n{path}: identified in {t1 - t0:.1f} s, estimators in {time.perf_counter() - t1:.1f} s")
+    scores = {}
+    for name in ESTIMATORS:
+        res = outcomes[(bs.name, name)]
+        scores[name] = trajectory_scores(res.estimate, bs.gt) if isinstance(res, JobResult) else res.error
+    return bs, scores
+
+
+def _smoother():
+    from graph.settings import SmootherSettings
+
+    return SmootherSettings()
+
+
+@pytest.fixture(scope="module")
+def shared(kitti_data_dir, regression_config):
+    return _bench(kitti_data_dir / "0027.npz", regression_config)
+
+
+@pytest.fixture(scope="module")
+def edition_2019(regression_config):
+    from eval.datasets import data_dir_2019
+
+    folder = data_dir_2019()
+    if not folder.is_dir():
+        skip_or_fail(f"data folder {folder} not found (set VISLAM_DATA_2019)")
+    return _bench(folder / "0027.npz", regression_config)
+
+
+def _check(edition, scores, name):
+    result = scores[name]
+    assert isinstance(result, dict), f"{name} failed on {edition}: {result}"
+    ate, t_rel = result["ate_aligned_m"], result["rpe_trans_pct"]
+    a, t = MEASURED[edition][name]
+    line = f"{name} on {edition}/0027: aligned ATE {ate:.3f} m (measured {a}), t_rel {t_rel:.3f} % (measured {t})"
+    print(line)
+    assert ate <= round(a * MARGIN + 0.005, 2), line
+    assert t_rel <= round(t * MARGIN + 0.005, 2), line
+    return ate, t_rel
+
+
+@pytest.mark.parametrize("name", ESTIMATORS)
+def test_shared_edition_accuracy(shared, name):
+    ate, t_rel = _check("kitti-pr3", shared[1], name)
+    if name in ("ekf-joint", "ekf-invariant"):
+        assert ate <= TARGET_EKF_ATE_M
+    if name == "smoother":
+        assert t_rel <= TARGET_SMOOTHER_T_REL
+
+
+@pytest.mark.parametrize("name", ESTIMATORS)
+def test_2019_edition_accuracy(edition_2019, name):
+    _check("kitti-pr3-2019", edition_2019[1], name)
+
+
+def test_the_identified_models(shared, edition_2019):
+    m_shared = shared[0].model
+    assert m_shared["mode"] == "identified"
+    sigma = np.array(m_shared["model"]["velocity_sigma"])
+    assert np.all((0.45 <= sigma) & (sigma <= 0.6)), sigma  # the README's 0.5 m/s
+    assert m_shared["model"]["gyro_bias"] is not None  # the README's gyro offsets
+    for bs in (shared[0], edition_2019[0]):
+        test = bs.model["identification"]["extrinsic_test"]
+        assert test["decision"].startswith("identified"), test  # the file's is refuted
+        assert test["statistic"] > 10 * test["threshold"]
+    m19 = edition_2019[0].model["model"]
+    assert m19["gyro_bias"] is None  # clean angular velocities: BIC says no bias
+    assert max(m19["velocity_sigma"]) < 0.2  # clean velocities
