@@ -97,8 +97,32 @@ MAX_STRETCHES_LISTED = 10
 _ANGULAR, _LINEAR = slice(0, 3), slice(3, 6)
 
 
+class _Ratios:
+    """chi2 / dof of the total, linear and angular sums (1 on average when the data fit the
+    model; 0 when nothing is tested)."""
+
+    chi2: float
+    dof: int
+    chi2_linear: float
+    dof_linear: int
+    chi2_angular: float
+    dof_angular: int
+
+    @property
+    def ratio(self) -> float:
+        return _ratio(self.chi2, self.dof)
+
+    @property
+    def ratio_linear(self) -> float:
+        return _ratio(self.chi2_linear, self.dof_linear)
+
+    @property
+    def ratio_angular(self) -> float:
+        return _ratio(self.chi2_angular, self.dof_angular)
+
+
 @dataclass(frozen=True)
-class StretchCheck:
+class StretchCheck(_Ratios):
     """The normalised velocity residuals of one stretch of the drive.
 
     ``start_s``/``end_s``: times (s) since the drive's first frame of the first interval's start
@@ -120,19 +144,6 @@ class StretchCheck:
     threshold_linear: float
     threshold_angular: float
     n_excluded_intervals: int  # intervals with every direction left out (no vision)
-
-    @property
-    def ratio(self) -> float:
-        """chi2 / dof (1 on average when the data fit the model; 0 when nothing is tested)."""
-        return _ratio(self.chi2, self.dof)
-
-    @property
-    def ratio_linear(self) -> float:
-        return _ratio(self.chi2_linear, self.dof_linear)
-
-    @property
-    def ratio_angular(self) -> float:
-        return _ratio(self.chi2_angular, self.dof_angular)
 
     @property
     def flagged_total(self) -> bool:
@@ -166,7 +177,7 @@ class StretchCheck:
 
 
 @dataclass(frozen=True)
-class VelocityCheck:
+class VelocityCheck(_Ratios):
     """What :func:`velocity_check` found: one :class:`StretchCheck` per stretch and the drive's
     totals (same definitions, over every interval)."""
 
@@ -184,18 +195,6 @@ class VelocityCheck:
     dof_linear: int
     chi2_angular: float
     dof_angular: int
-
-    @property
-    def ratio(self) -> float:
-        return _ratio(self.chi2, self.dof)
-
-    @property
-    def ratio_linear(self) -> float:
-        return _ratio(self.chi2_linear, self.dof_linear)
-
-    @property
-    def ratio_angular(self) -> float:
-        return _ratio(self.chi2_angular, self.dof_angular)
 
     @property
     def flagged(self) -> tuple[StretchCheck, ...]:
