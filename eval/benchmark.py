@@ -216,14 +216,24 @@ def identify_models(sequences: list[BenchSequence], config: FilterConfig,
                     on_start: Callable[[BenchSequence], None] | None = None) -> list[BenchSequence]:
     """Each drive under the model identified from its own data
     (:func:`eval.model_cache.identified_model`, cached by content); ``on_start(bs)`` is called
-    before a drive's identification runs (not when the cache has it)."""
+    before a drive's identification runs (not when the cache has it). A drive whose model
+    cannot be identified (EstimationError: too short, the smoother fails) is benchmarked as
+    given, with a warning and ``identification_failed`` in its record."""
     from eval.model_cache import cache_dir, identified_model
 
     out = []
     for bs in sequences:
         if on_start is not None and not (cache_dir() / f"{cache_key_for(bs, config, smoother)}.toml").is_file():
             on_start(bs)
-        found = identified_model(bs.sequence, config, smoother)
+        try:
+            found = identified_model(bs.sequence, config, smoother)
+        except EstimationError as exc:  # too short, or the smoother fails on it: as given
+            log.warning("%s: cannot identify the model (%s); the file's values and the "
+                        "settings as given are used", bs.name, exc)
+            (given,) = as_given([bs])
+            given.model["identification_failed"] = str(exc)
+            out.append(given)
+            continue
         record = {"cached": found.cached, "cache_entry": None if found.path is None else str(found.path),
                   "identification": found.report}
         out += apply_model_to([bs], found.model, config, "identified", record)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -197,3 +198,48 @@ def test_bench_hostile_landmark_file_is_one_line_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "s1_landmarks.npz" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_bench_identifies_the_model_by_default_caches_it_and_records_it(tmp_path, monkeypatch):
+    import json
+
+    from eval.cli import main
+
+    model_cache = tmp_path / "cache"  # this test's own: the first run must identify
+    monkeypatch.setenv("VISLAM_CACHE_DIR", str(model_cache))
+    out1, out2, out3 = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    argv = ["bench", "--frames", "60", "-e", "dead-reckoning,ekf-invariant", "-j", "1", "-q"]
+    assert main([*argv, "--out", str(out1)]) == 0
+    seq = json.loads((out1 / "results.json").read_text())["sequences"][0]
+    model = seq["model"]
+    assert model["mode"] == "identified" and model["cached"] is False
+    entry = model["cache_entry"]
+    assert entry and entry.startswith(str(model_cache)) and Path(entry).is_file()
+    assert model["model"]["file"]["cam_T_imu"] is not None  # the file's values beside
+    assert model["identification"]["extrinsic_test"]["decision"]
+    assert model["ground_truth_extrinsic"].startswith("none needed")  # simulated truth
+    settings = json.loads((out1 / "settings.json").read_text())
+    assert settings["model_mode"] == "identify"
+    assert settings["sequences"][0]["filter"]["velocity_pairing"] == model["model"]["velocity_pairing"]
+    # a second run reads the cache: same model, no identification
+    assert main([*argv, "--out", str(out2)]) == 0
+    again = json.loads((out2 / "results.json").read_text())["sequences"][0]["model"]
+    assert again["cached"] is True and again["model"] == model["model"]
+    # --model as-given: the file's extrinsic and the settings as given
+    assert main([*argv, "--model", "as-given", "--out", str(out3)]) == 0
+    given = json.loads((out3 / "results.json").read_text())["sequences"][0]["model"]
+    assert given["mode"] == "as-given" and given["model"] is None
+    assert given["cam_T_imu"] == model["model"]["file"]["cam_T_imu"]
+
+
+def test_bench_falls_back_to_as_given_when_the_model_cannot_be_identified(tmp_path, caplog):
+    import json
+
+    from eval.cli import main
+
+    out = tmp_path / "o"
+    assert main(["bench", "--frames", "2", "-e", "dead-reckoning", "-j", "1", "-q",
+                 "--out", str(out)]) == 0
+    model = json.loads((out / "results.json").read_text())["sequences"][0]["model"]
+    assert model["mode"] == "as-given" and "at least 3 frames" in model["identification_failed"]
+    assert "cannot identify the model" in caplog.text
