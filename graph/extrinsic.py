@@ -40,6 +40,7 @@ import scipy.sparse.linalg as spla
 
 from ekf.geometry import hat, se3_inv, so3_exp
 from ekf.model import EXTRINSIC_COMPONENTS
+from ekf.errors import EstimationError
 from graph.pose_conversions import X, estimation_error, to_pose3
 
 #: Standard deviation of the weak prior around the current value, per component of theta
@@ -144,6 +145,11 @@ def linear_system(solution, cam_T_imu: np.ndarray) -> ExtrinsicSystem:
     start = sum(int(graph.at(i).dim()) for i in range(T))
     N = len(rows)
     stereo = slice(start, start + 3 * N)
+    if N and not (isinstance(graph.at(T), gtsam.GenericStereoFactor3D)
+                  and isinstance(graph.at(T + N - 1), gtsam.GenericStereoFactor3D)
+                  and stereo.stop <= n_rows):
+        raise EstimationError("extrinsic: the graph's stereo factors are not where "
+                              "graph.factors.build_graph puts them")
     pose_cols = np.array([offsets[X(int(k))] for k in range(T)])
     A_st = A[stereo].tocoo()
     local = A_st.col - pose_cols[np.repeat(rows.frame, 3)[A_st.row]]
