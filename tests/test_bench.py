@@ -243,3 +243,27 @@ def test_bench_falls_back_to_as_given_when_the_model_cannot_be_identified(tmp_pa
     model = json.loads((out / "results.json").read_text())["sequences"][0]["model"]
     assert model["mode"] == "as-given" and "at least 3 frames" in model["identification_failed"]
     assert "cannot identify the model" in caplog.text
+
+
+def test_summary_says_which_model_and_when_the_reference_is_not_a_fair_yardstick():
+    base = {"name": "d", "frames": 10, "has_ground_truth": True, "reference_smoother": "smoother"}
+    row = {k: None for k in benchmark.ESTIMATOR_KEYS}
+    row["vs_smoother"] = {k: None for k in benchmark.VS_SMOOTHER_KEYS}
+
+    def summary(nees, model):
+        r = {**row, "name": "smoother", "nees_pose_mean": nees}
+        return benchmark.summary_markdown({"rpe_definition": "x", "sequences": [
+            {**base, "model": model, "estimators": [r]}]})
+
+    identified = {"mode": "identified", "cached": True, "model": {
+        "velocity_sigma": [0.5, 0.5, 0.5], "gyro_sigma": [0.05] * 3, "pixel_sigma": 0.7,
+        "velocity_pairing": "mean", "gyro_bias": None},
+        "identification": {"extrinsic_test": {"decision": "identified (the data refute the file's)",
+                                              "statistic": 991.0, "dof": 5}}}
+    text = summary(97.5, identified)
+    assert "Model identified from the data (cached): velocity sigma 0.5, 0.5, 0.5 m/s" in text
+    assert "no gyro bias" in text and "the data refute the file's" in text
+    assert "The smoother is overconfident on this drive: pose NEES 97.5, band [1.24, 14.45]" in text
+    assert "overconfident" not in summary(6.1, identified)
+    assert "underconfident" in summary(0.5, identified)
+    assert "Model: the file's extrinsic and the settings as given." in summary(6.0, {"mode": "as-given"})
