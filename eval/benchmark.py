@@ -68,9 +68,6 @@ ESTIMATOR_KEYS = (
 VS_SMOOTHER_KEYS = ("ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean", "inside_95_fraction")
 SEQUENCE_KEYS = ("name", "path", "frames", "has_ground_truth", "has_landmark_truth", "model",
                  "estimators")
-#: How a drive's model was chosen: identified from the data (the default, cached), given in
-#: the --config file's [model] table, or the file's values and the settings as given.
-MODEL_MODES = ("identified", "config", "as-given")
 
 
 @dataclass(frozen=True)
@@ -93,7 +90,9 @@ class BenchSequence:
     landmark_truth: np.ndarray | None = None  # (n_tracks, 3) per source track
     origin: dict | None = None  # how it was made (simulation settings)
     config: FilterConfig | None = None  # the filter settings under this drive's model
-    model: dict | None = None  # the model in use, as results.json records it (MODEL_MODES)
+    #: the model in use, as results.json records it; its "mode": "identified" from the data
+    #: (the default, cached), "config" (a [model] table in --config) or "as-given"
+    model: dict | None = None
 
 
 @dataclass
@@ -219,14 +218,13 @@ def identify_models(sequences: list[BenchSequence], config: FilterConfig,
     before a drive's identification runs (not when the cache has it). A drive whose model
     cannot be identified (EstimationError: too short, the smoother fails) is benchmarked as
     given, with a warning and ``identification_failed`` in its record."""
-    from eval.model_cache import cache_dir, identified_model
+    from eval.model_cache import identified_model
 
     out = []
     for bs in sequences:
-        if on_start is not None and not (cache_dir() / f"{cache_key_for(bs, config, smoother)}.toml").is_file():
-            on_start(bs)
+        announce = None if on_start is None else (lambda bs=bs: on_start(bs))
         try:
-            found = identified_model(bs.sequence, config, smoother)
+            found = identified_model(bs.sequence, config, smoother, on_miss=announce)
         except EstimationError as exc:  # too short, or the smoother fails on it: as given
             log.warning("%s: cannot identify the model (%s); the file's values and the "
                         "settings as given are used", bs.name, exc)
@@ -238,14 +236,6 @@ def identify_models(sequences: list[BenchSequence], config: FilterConfig,
                   "identification": found.report}
         out += apply_model_to([bs], found.model, config, "identified", record)
     return out
-
-
-def cache_key_for(bs: BenchSequence, config: FilterConfig, smoother: SmootherSettings) -> str:
-    from ekf.config import VELOCITY_PAIRINGS
-    from eval.model_cache import cache_key
-
-    return cache_key(bs.sequence, config, smoother.replace(compute_marginals=False),
-                     tuple(VELOCITY_PAIRINGS))
 
 
 # --- jobs ------------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -140,8 +141,10 @@ def _write(key: str, folder: Path, model: Model, report: dict) -> Path | None:
 def identified_model(seq: Sequence, config: FilterConfig = FilterConfig(),
                      settings: SmootherSettings = SmootherSettings(), *,
                      pairings: tuple[str, ...] | None = None,
-                     folder: Path | None = None) -> IdentifiedModel:
-    """The identified model of ``seq`` (from the cache when it holds it)."""
+                     folder: Path | None = None,
+                     on_miss: Callable[[], None] | None = None) -> IdentifiedModel:
+    """The identified model of ``seq`` (from the cache when it holds it); ``on_miss()`` is
+    called before an identification runs (the cache does not hold it)."""
     from ekf.config import VELOCITY_PAIRINGS
     from graph.identification import identify_model
 
@@ -153,6 +156,8 @@ def identified_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     if hit is not None:
         log.info("model cache: %s read from %s", seq.name, folder / f"{key}.toml")
         return IdentifiedModel(hit[0], hit[1], True, key, folder / f"{key}.toml")
+    if on_miss is not None:
+        on_miss()
     fit = identify_model(seq, config, settings, pairings=pairings)
     name = seq.name if seq.source is None else Path(seq.source).name
     model = fit.to_model(f"identified from {name} (EM around the smoother; vislam bench)")

@@ -64,7 +64,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-import gtsam
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
@@ -272,12 +271,11 @@ def interval_residuals(solution, config: FilterConfig) -> tuple[np.ndarray, np.n
     """``(w, R, W)``: the smoother's twist-noise residual of each interval (n, 6), its
     covariance under the model ``W - C Sigma C^T`` (n, 6, 6) and ``W`` (6, 6), all in GTSAM's
     rotation-first order; ``solution`` a :class:`graph.smoother.SmootherSolution` solved with
-    ``config``. (The same residual and Jacobian as
-    :func:`graph.identification.noise_statistics`.)"""
+    ``config`` (:func:`graph.identification.motion_residuals`, as EM's E-step)."""
     from graph.factors import fix_bias
     from graph.gyro_bias import corrected_deltas
+    from graph.identification import motion_residuals
     from graph.marginals import pose_chain_covariances
-    from graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
 
     problem, values = solution.problem, solution.values
     graph, deltas = problem.graph, solution.deltas
@@ -294,17 +292,9 @@ def interval_residuals(solution, config: FilterConfig) -> tuple[np.ndarray, np.n
     if n == 0:
         return w, R, W
     pose_cov, pair_cov = pose_chain_covariances(graph, values, T, problem.landmark_tracks)
-    twist, tau = solution.twist, solution.tau
-    for k in range(n):
-        Xk, Xk1 = to_pose3(solution.poses[k]), to_pose3(solution.poses[k + 1])
-        rel = Xk.between(Xk1)
-        err = gtsam.Pose3.Logmap(to_pose3(deltas[k]).between(rel))
-        J = expmap_right_jacobian(twist_to_gtsam(tau[k] * twist[k]))
-        M = np.linalg.inv(tau[k] * J)
-        w[k] = M @ err
-        C = M @ np.hstack([-rel.inverse().AdjointMap(), np.eye(6)])
-        block = np.block([[pose_cov[k], pair_cov[k]], [pair_cov[k].T, pose_cov[k + 1]]])
-        R[k] = W - C @ block @ C.T
+    w, cw, _ = motion_residuals(solution.poses, deltas, solution.twist, solution.tau,
+                                pose_cov, pair_cov)
+    R = W - cw
     R = 0.5 * (R + np.swapaxes(R, 1, 2))
     return w, R, W
 

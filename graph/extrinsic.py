@@ -41,6 +41,7 @@ import scipy.sparse.linalg as spla
 from ekf.geometry import hat, se3_inv, so3_exp
 from ekf.model import EXTRINSIC_COMPONENTS
 from ekf.errors import EstimationError
+from graph.marginals import whitened_system
 from graph.pose_conversions import X, estimation_error, to_pose3
 
 #: Standard deviation of the weak prior around the current value, per component of theta
@@ -98,20 +99,6 @@ def theta_map(cam_T_imu: np.ndarray) -> np.ndarray:
     return -Ad_E @ N
 
 
-def _column_offsets(linear: gtsam.GaussianFactorGraph) -> tuple[dict, int]:
-    """Column offset of each key in ``sparseJacobian_`` (keys in sorted order) and the width."""
-    offsets, n = {}, 0
-    for key in sorted(linear.keyVector()):
-        offsets[key] = n
-        n += _key_dim(key)
-    return offsets, n
-
-
-def _key_dim(key: int) -> int:
-    """Poses (``x``) are 6-dimensional; landmarks and the gyro bias 3."""
-    return 6 if chr(gtsam.Symbol(int(key)).chr()) == "x" else 3
-
-
 @dataclass
 class ExtrinsicSystem:
     """The linearised batch problem at a solution, with the extrinsic's columns beside it."""
@@ -124,22 +111,12 @@ class ExtrinsicSystem:
 
 def linear_system(solution, cam_T_imu: np.ndarray) -> ExtrinsicSystem:
     """GTSAM's linearisation of a solved smoother and the extrinsic's whitened Jacobian."""
-    problem, values = solution.problem, solution.values
+    problem = solution.problem
     rows = problem.rows
     T = solution.poses.shape[0]
-    try:
-        linear = problem.graph.linearize(values)
-    except RuntimeError as exc:
-        raise estimation_error(exc, "linearising for the extrinsic") from None
-    offsets, n = _column_offsets(linear)
-    trip = linear.sparseJacobian_()
-    r_idx = trip[0].astype(np.int64) - 1
-    c_idx = trip[1].astype(np.int64) - 1
-    n_rows = int(r_idx.max()) + 1
-    is_b = c_idx == n
-    b = np.zeros(n_rows)
-    b[r_idx[is_b]] = trip[2][is_b]
-    A = sp.csr_matrix((trip[2][~is_b], (r_idx[~is_b], c_idx[~is_b])), shape=(n_rows, n))
+    system = whitened_system(problem.graph, solution.values, "linearising for the extrinsic")
+    A, b, offsets = system.A, system.b, system.offsets
+    n_rows = A.shape[0]
     # The stereo factors follow the pose prior and the T-1 motion factors (graph.factors).
     graph = problem.graph
     start = sum(int(graph.at(i).dim()) for i in range(T))

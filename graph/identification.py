@@ -62,6 +62,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from ekf.config import VELOCITY_PAIRINGS, FilterConfig
+from ekf.conventions import estimate_cov_to_gtsam
 from ekf.errors import EstimationError
 from ekf.model import interval_sigma_factor
 from ekf.sequence import Sequence
@@ -141,21 +142,14 @@ class ModelFit:
         """(6,) standard deviations of [dt; r] (inf where undetermined), None if not estimated."""
         if self.cam_T_imu_cov is None:
             return None
-        from ekf.model import EXTRINSIC_COMPONENTS
-
-        out = np.sqrt(np.diag(self.cam_T_imu_cov))
-        for name in self.cam_T_imu_undetermined:
-            out[EXTRINSIC_COMPONENTS.index(name)] = np.inf
-        return out
+        return self.to_model("").extrinsic_sigmas()
 
     def to_model(self, source: str):
         """The :class:`ekf.model.Model` (per-sample sigmas; the file's extrinsic under [file])."""
         from ekf.model import EXTRINSIC_COMPONENTS, Model
 
-        sigma = None
-        if self.cam_T_imu_cov is not None:
-            raw = np.sqrt(np.diag(self.cam_T_imu_cov))
-            sigma = tuple(float(x) for x in raw)
+        sigma = None if self.cam_T_imu_cov is None else tuple(
+            float(x) for x in np.sqrt(np.diag(self.cam_T_imu_cov)))
         return Model(
             velocity_sigma=tuple(map(float, self.velocity_sigma)),
             gyro_sigma=tuple(map(float, self.gyro_sigma)),
@@ -172,6 +166,30 @@ class ModelFit:
         )
 
 
+def motion_residuals(poses: np.ndarray, deltas: np.ndarray, twist: np.ndarray, tau: np.ndarray,
+                     pose_cov: np.ndarray, pair_cov: np.ndarray):
+    """Per interval k of a solved smoother, in GTSAM's rotation-first order: the twist noise
+    ``w = (tau J)^-1 Log(Delta^-1 X_k^-1 X_k+1)`` (n, 6), its posterior covariance
+    ``C Sigma C^T`` (n, 6, 6) with ``C`` its Jacobian on ``(X_k, X_k+1)`` and ``Sigma`` their
+    joint marginal (``pose_cov``, ``pair_cov``: :func:`graph.marginals.pose_chain_covariances`),
+    and ``tau J`` (n, 6, 6), ``J`` the right Jacobian of the measured twist ``Delta``."""
+    n = max(poses.shape[0] - 1, 0)
+    w = np.zeros((n, 6))
+    cw = np.zeros((n, 6, 6))
+    scale = np.zeros((n, 6, 6))
+    for k in range(n):
+        Xk, Xk1 = to_pose3(poses[k]), to_pose3(poses[k + 1])
+        rel = Xk.between(Xk1)
+        err = gtsam.Pose3.Logmap(to_pose3(deltas[k]).between(rel))
+        scale[k] = tau[k] * expmap_right_jacobian(twist_to_gtsam(tau[k] * twist[k]))
+        M = np.linalg.inv(scale[k])
+        w[k] = M @ err
+        C = M @ np.hstack([-rel.inverse().AdjointMap(), np.eye(6)])
+        block = np.block([[pose_cov[k], pair_cov[k]], [pair_cov[k].T, pose_cov[k + 1]]])
+        cw[k] = C @ block @ C.T
+    return w, cw, scale
+
+
 def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
     """The E-step: expected squared residuals of the motion and stereo factors of a solved
     smoother (:class:`graph.smoother.SmootherSolution`) and the Laplace likelihood terms."""
@@ -182,25 +200,17 @@ def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
     T = solution.poses.shape[0]
     pose_cov, pair_cov, log_det_h = pose_chain_covariances(
         problem.graph, values, T, problem.landmark_tracks, with_log_det=True)
-    twist, tau = solution.twist, solution.tau
-    W_g = _gtsam_order(config.velocity_cov)  # the interval covariance the factors used
+    W_g = estimate_cov_to_gtsam(config.velocity_cov)  # what graph.factors.relative_motions uses
     W_inv = np.linalg.inv(W_g)
+    w, cw, scale = motion_residuals(solution.poses, solution.deltas, solution.twist,
+                                    solution.tau, pose_cov, pair_cov)
     motion_sq = np.zeros(6)
     leverage = 0.0
     log_det_noise = 0.0
     for k in range(T - 1):
-        Xk, Xk1 = to_pose3(solution.poses[k]), to_pose3(solution.poses[k + 1])
-        rel = Xk.between(Xk1)
-        err = gtsam.Pose3.Logmap(to_pose3(solution.deltas[k]).between(rel))
-        J = expmap_right_jacobian(twist_to_gtsam(tau[k] * twist[k]))
-        M = np.linalg.inv(tau[k] * J)
-        w = M @ err
-        C = M @ np.hstack([-rel.inverse().AdjointMap(), np.eye(6)])
-        block = np.block([[pose_cov[k], pair_cov[k]], [pair_cov[k].T, pose_cov[k + 1]]])
-        cw = C @ block @ C.T
-        motion_sq += w * w + np.diag(cw)
-        leverage += float(np.trace(W_inv @ cw))
-        log_det_noise += float(np.linalg.slogdet((tau[k] * J) @ W_g @ (tau[k] * J).T)[1])
+        motion_sq += w[k] * w[k] + np.diag(cw[k])
+        leverage += float(np.trace(W_inv @ cw[k]))
+        log_det_noise += float(np.linalg.slogdet(scale[k] @ W_g @ scale[k].T)[1])
     res, _ = stereo_residuals(solution.poses, solution.landmarks, solution.calibration,
                               problem.rows)
     pixel_sq = float(np.sum(res[:, 0] ** 2 + res[:, 1] ** 2 + 2.0 * res[:, 2] ** 2))
@@ -218,12 +228,6 @@ def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
         chi2=2.0 * float(problem.graph.error(values)), log_det_noise=log_det_noise,
         log_det_information=float(log_det_h),
     )
-
-
-def _gtsam_order(cov6: np.ndarray) -> np.ndarray:
-    """A twist covariance from translation-first to GTSAM's rotation-first order."""
-    p = np.r_[3:6, 0:3]
-    return cov6[np.ix_(p, p)]
 
 
 def _sigmas(cfg: FilterConfig) -> np.ndarray:
@@ -380,8 +384,8 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
         raise EstimationError("calibrate: needs at least 3 frames")
     with_bias = settings.replace(gyro_bias="alternate", relative_error_tol=max(
         settings.relative_error_tol, EM_RELATIVE_ERROR_TOL))
-    # EM to convergence under the first pairing; the others from there, a SQUAREM cycle each
-    # (warm: their scores settle in a step or two), and the best continued to convergence.
+    # EM to convergence under the pairing given; the others from there, PAIRING_STEPS warm
+    # E-steps each, and one that wins by PAIRING_MARGIN continued to convergence.
     fits: dict[str, EMResult] = {}
     given = config.velocity_pairing
     first = given if given in pairings else pairings[0]
@@ -496,5 +500,6 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
 
 
 __all__ = ["ModelFit", "EMResult", "NoiseStatistics", "identify_model", "em_noise",
+           "motion_residuals",
            "noise_statistics", "with_extrinsic", "EXTRINSIC_STEP_TOL",
            "BIAS_TEST_LEVEL"]

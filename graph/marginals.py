@@ -23,6 +23,8 @@ world-frame ``Point3`` covariances in both.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import gtsam
 import numpy as np
 import scipy.linalg
@@ -34,26 +36,55 @@ from ekf.errors import EstimationError
 from graph.pose_conversions import L, X, estimation_error, key_name
 
 
-def _information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
-                 tracks: np.ndarray) -> tuple[sp.csr_matrix, int]:
-    """Information matrix (sparse) with columns ordered [landmarks of ``tracks`` (sorted), poses]."""
+@dataclass
+class WhitenedSystem:
+    """GTSAM's linearisation of a graph at some values, as sparse arrays: ``A x ~= b`` with
+    ``A`` the whitened Jacobian (robust weights included) and ``b`` minus the whitened error."""
+
+    A: sp.csr_matrix  # (rows, n)
+    b: np.ndarray  # (rows,)
+    keys: list  # the variables, sorted: the order of A's column blocks
+    offsets: dict  # key -> its first column in A
+
+
+def _key_dim(key: int) -> int:
+    """Poses (``x``) are 6-dimensional; landmarks and the gyro bias 3."""
+    return 6 if chr(gtsam.Symbol(int(key)).chr()) == "x" else 3
+
+
+def whitened_system(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                    doing: str) -> WhitenedSystem:
+    """``graph.linearize(values)`` through ``sparseJacobian_`` (columns by sorted key, the
+    last one the right-hand side b); ``doing`` names the step in an EstimationError."""
     try:
         linear = graph.linearize(values)
     except RuntimeError as exc:
-        raise estimation_error(exc, "linearising for marginal covariances") from None
+        raise estimation_error(exc, doing) from None
+    keys = sorted(linear.keyVector())
+    offsets, n = {}, 0
+    for key in keys:
+        offsets[key] = n
+        n += _key_dim(key)
     triplets = linear.sparseJacobian_()
     rows = triplets[0].astype(np.int64) - 1
     cols = triplets[1].astype(np.int64) - 1
-    n_l = 3 * len(tracks)
-    n = n_l + 6 * n_frames
-    # sparseJacobian_ orders columns by sorted key: 'l' keys (by index) before 'x' keys; the
-    # extra last column is the right-hand side b.
+    n_rows = int(rows.max()) + 1
+    is_b = cols == n
+    b = np.zeros(n_rows)
+    b[rows[is_b]] = triplets[2][is_b]
+    A = sp.csr_matrix((triplets[2][~is_b], (rows[~is_b], cols[~is_b])), shape=(n_rows, n))
+    return WhitenedSystem(A, b, keys, offsets)
+
+
+def _information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
+                 tracks: np.ndarray) -> tuple[sp.csr_matrix, int]:
+    """Information matrix (sparse) with columns ordered [landmarks of ``tracks`` (sorted), poses]."""
+    system = whitened_system(graph, values, "linearising for marginal covariances")
+    # 'l' keys (by index) sort before 'x' keys
     expected = [L(int(j)) for j in np.sort(tracks)] + [X(k) for k in range(n_frames)]
-    if sorted(linear.keyVector()) != sorted(expected) or sorted(expected) != expected:
+    if system.keys != sorted(expected) or sorted(expected) != expected:
         raise EstimationError("marginals: the graph's variables are not the expected poses and landmarks")
-    keep = cols < n
-    A = sp.csr_matrix((triplets[2][keep], (rows[keep], cols[keep])), shape=(int(rows.max()) + 1, n))
-    return (A.T @ A).tocsr(), n_l
+    return (system.A.T @ system.A).tocsr(), 3 * len(tracks)
 
 
 def schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,

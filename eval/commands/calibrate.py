@@ -9,8 +9,10 @@ table every command's ``--config`` reads).
 The camera-IMU extrinsic is identified too (:mod:`graph.extrinsic`: a variable of the stereo
 factors, with its covariance from the whole drive), unless ``--extrinsic file`` keeps the
 file's. The report gives each component with its sigma beside the file's, the lever arm (the
-camera's position in the IMU frame), names the components the drive cannot determine, and ends
+camera's position, IMU axes), names the components the drive cannot determine, and ends
 with a verdict on the file's extrinsic ("file lever arm 2.1 m from the data's: 14 sigma"),
+then the data check of :mod:`graph.data_check` under the identified model: stretches of the
+drive where velocities and vision still disagree beyond their noise.
 
 What the data determine is the camera's position relative to the point whose velocity the file
 gives, which need not be the IMU's origin of the ground truth. On both editions of KITTI 0027,
@@ -18,9 +20,6 @@ the file's lateral velocity minus the ground truth's (KITTI's extrinsic) grows w
 by 1.6-1.8 m and with the yaw rate by 0.2 m: the velocities are those of a point about 1.7 m
 below and 0.2 m ahead of KITTI's IMU origin, and the identified vertical lever arm (about 2 m
 on the 2019 edition) is that point's.
-
-then the data check of :mod:`graph.data_check` under the identified model: stretches of the
-drive where velocities and vision still disagree beyond their noise.
 """
 
 from __future__ import annotations
