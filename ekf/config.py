@@ -62,6 +62,12 @@ JOINT_LINEARISATIONS = ("standard", "fej", "oc")
 #: ``triangulate_unscented``: mean and covariance to higher order, the skewed far depths).
 TRIANGULATIONS = ("linear", "unscented")
 
+#: How ekf-joint and ekf-invariant hold a landmark in their state (ekf/inverse_depth.py):
+#: "euclidean" (world x, y, z from the first observation on) or "inverse-depth" (anchored
+#: inverse depth: bearing and inverse depth in the camera frame of the first observation, turned
+#: into world x, y, z once Civera's linearity index falls below ``inverse_depth_linearity``).
+LANDMARK_PARAMETERISATIONS = ("euclidean", "inverse-depth")
+
 #: Smallest standard deviation accepted: its square (1e-24) is still a normal positive float.
 SIGMA_MIN = 1e-12
 #: Words that switch the chi-square gate off (``gate_probability``), in a file or a flag.
@@ -211,6 +217,8 @@ FILTER_RULES: dict[str, Rule] = {
     "gyro_bias_walk": Rule("float", 0.0, 1e3),  # rad/s/sqrt(s); 0: a constant bias
     "joint_linearisation": Rule("choice", choices=JOINT_LINEARISATIONS),
     "triangulation": Rule("choice", choices=TRIANGULATIONS),
+    "landmark_parameterisation": Rule("choice", choices=LANDMARK_PARAMETERISATIONS),
+    "inverse_depth_linearity": Rule("float", 0.0, 1e3),  # dimensionless; 0: never convert
     "blas_threads": Rule("int", 1, 1024),
 }
 
@@ -280,13 +288,23 @@ class FilterConfig:
     gyro_bias_walk: float = 1e-4
     #: Linearisation of ekf-joint: "standard", "fej" or "oc" (see ekf/joint.py).
     joint_linearisation: str = "oc"
-    #: Landmark initialisation of every EKF: "linear" or "unscented" (see TRIANGULATIONS).
+    #: Landmark initialisation of every EKF: "linear" or "unscented" (see TRIANGULATIONS);
+    #: inverse-depth landmarks need neither (their initialisation is exactly linear).
     #: "unscented" matches a Monte Carlo of the triangulation (1-3 %, linear: 4 % at 20 m, 29 %
     #: at 50 m) but did not help the filters. Measured, 8 sim runs x 120 frames, linear ->
     #: unscented: pose ANEES invariant 15.8 -> 13.9, joint 15.8 -> 16.7; landmark NEES median
     #: ~4.8 -> 4.3-4.9, mean 36 -> 1200-1600 (far means); 0027 aligned ATE joint 5.98 -> 6.13 m,
     #: invariant 5.89 -> 6.09 m; noise-free data no longer recovered exactly (6 cm ATE).
     triangulation: str = "linear"
+    #: Landmark parameterisation of ekf-joint and ekf-invariant (LANDMARK_PARAMETERISATIONS).
+    #: Measured, Euclidean -> inverse depth: default simulation, `vislam nees --runs 50`, pose
+    #: ANEES joint 25.5 -> ~6, invariant 22.2 -> ~6 (bounds [5.08, 7.00]), landmarks 45.7 / 41.5
+    #: -> ~3 ([2.36, 3.72]); 0027 aligned ATE joint 5.65 -> 5.20 m, invariant 5.63 -> 5.22 m;
+    #: 2019 edition of 0027 1.73 -> 1.62 / 1.61 m.
+    landmark_parameterisation: str = "inverse-depth"
+    #: An inverse-depth landmark becomes Euclidean once Civera's linearity index
+    #: ``4 sigma_d |cos alpha| / d`` is below this (0: never).
+    inverse_depth_linearity: float = 0.1
     #: Threads BLAS may use in the hot loop (1: small matrices run fastest single-threaded).
     blas_threads: int = 1
 

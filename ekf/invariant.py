@@ -35,6 +35,19 @@ New landmarks (stereo triangulation ``p_c`` of ``z``): ``l = T imu_T_cam p_c`` a
 ``xi_l = xi_p + R R_ic dp_c`` to first order (:func:`augmentation_jacobians`): the new landmark
 inherits the position error of the pose and none of its rotation error.
 
+Inverse-depth landmarks (``config.landmark_parameterisation = "inverse-depth"``,
+:mod:`ekf.inverse_depth`). An anchored inverse-depth landmark ``x = [alpha, beta, rho]`` is not a
+point of the group: its anchor is a fixed frame, so ``x`` is a vector state with an additive
+error (like the bias), outside SE_{1+K}(3). There the invariant structure is lost: its rows get
+no process noise, but its observation Jacobian depends on the estimate,
+``H = [A_h (-C R^T [rho I, -s^]), 0, A_h C R^T G]`` with ``m_h = [s; rho]`` (ID-2,
+:func:`inverse_depth_jacobians`), and a world change moves it by the estimate-dependent
+``N_j = D R_a^T [I, -m^]`` (ID-7). The filter keeps those directions unobservable as ekf-joint's
+"oc" does: after each update ``P <- T P T^T`` with ``T`` adding ``N_j(x+) - N_j(x-)`` times
+the pose rows (the pose rows of the nullspace are the identity here). Once the linearity index
+allows (ID-5), the landmark joins the group: ``xi_l = J dx + l^ xi_R`` (ID-6 with the
+right-invariant coordinates, :func:`_to_group`), after which it is exactly as above.
+
 Output. ``Estimate.pose_cov`` converts the pose block with
 :func:`ekf.conventions.left_cov_to_estimate`; a landmark's world covariance is ``G P G^T`` with
 ``dl = xi_lj - l^ xi_R`` (:func:`landmark_world_jacobian`).
@@ -43,7 +56,7 @@ Output. ``Estimate.pose_cov`` converts the pose block with
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -51,6 +64,7 @@ from scipy.linalg.blas import dtrsm
 from scipy.linalg.lapack import dpotrf
 from scipy.stats import chi2
 
+from ekf import inverse_depth as idp
 from ekf.camera import dpi_dq, project, triangulate_unscented, triangulate_with_jacobian
 from ekf.config import FilterConfig
 from ekf.conventions import left_cov_to_estimate
@@ -167,6 +181,23 @@ def augmentation_jacobians(T: np.ndarray, J_tri: np.ndarray, imu_T_cam: np.ndarr
     return (T[:3, :3] @ imu_T_cam[:3, :3]) @ J_tri
 
 
+def inverse_depth_jacobians(T: np.ndarray, m_h: np.ndarray, G: np.ndarray, cam_T_imu, M):
+    """Observation Jacobians of inverse-depth landmarks (homogeneous world points ``m_h``
+    (N, 4), ``dm_h/dx = G`` (N, 4, 3)) under the right-invariant pose error:
+    ``(q_h (N, 4), H_pose (N, 4, 6), H_x (N, 4, 3))`` with ``q_h = cam_T_imu T^-1 m_h``,
+    ``H_pose = -A_h C R^T [rho I, -s^]`` (``m_h = [s; rho]``, ``T_true^-1 = T^-1 exp(-xi)``) and
+    ``H_x = A_h cam_T_imu T^-1 G``, ``A_h = M dpi/dq(q_h)``."""
+    Ti = np.linalg.inv(T)
+    CTi = cam_T_imu @ Ti
+    q_h = m_h @ CTi.T
+    A = M @ dpi_dq(q_h)  # (N, 4, 4)
+    ACRt = A[:, :, :3] @ CTi[:3, :3]
+    Hp = np.empty((m_h.shape[0], 4, 6))
+    Hp[:, :, :3] = -ACRt * m_h[:, 3, None, None]
+    Hp[:, :, 3:] = ACRt @ hat(m_h[:, :3])
+    return q_h, Hp, A @ CTi @ G
+
+
 def landmark_world_jacobian(landmarks: np.ndarray) -> np.ndarray:
     """``G`` (N, 3, 6) on ``[xi_R; xi_l]``: ``l_true - l_est ~ -l^ xi_R + xi_l``."""
     landmarks = np.atleast_2d(landmarks)
@@ -194,10 +225,28 @@ def landmark_world_cov(P: np.ndarray, landmarks: np.ndarray, slots: np.ndarray, 
 @dataclass
 class _State:
     T: np.ndarray
-    landmarks: np.ndarray  # (K, 3), slot order
+    landmarks: np.ndarray  # (K, 3), slot order: world l, or x = [alpha, beta, rho]
     tracks: np.ndarray  # (K,) track id of each slot
     P: np.ndarray
     bias: np.ndarray | None
+    # Inverse-depth slots and their anchors (world_T_camera at the first observation).
+    lm_id: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    anchor_R: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    anchor_p: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    def world_landmarks(self, slots: np.ndarray, off: int) -> tuple[np.ndarray, np.ndarray]:
+        """World means (k, 3) and covariances (k, 3, 3) of ``slots``."""
+        mean = self.landmarks[slots].copy()
+        cov = landmark_world_cov(self.P, self.landmarks[slots], slots, off)
+        i = self.lm_id[slots]
+        if i.any():
+            s = slots[i]
+            x, R_a = self.landmarks[s], self.anchor_R[s]
+            J = idp.world_jacobian(x, R_a)
+            rows = off + 3 * s[:, None] + np.arange(3)
+            mean[i] = idp.world_point(x, R_a, self.anchor_p[s])
+            cov[i] = J @ self.P[rows[:, :, None], rows[:, None, :]] @ np.swapaxes(J, 1, 2)
+        return mean, cov
 
 
 def run_invariant(
@@ -256,6 +305,7 @@ def _run(seq: Sequence, config: FilterConfig, progress, guard: NumericalGuard) -
     slot_of = -np.ones(seq.n_tracks, dtype=np.int64)
     done = np.zeros(seq.n_tracks, dtype=bool)
     bias_hist = np.zeros((Tn, 3)) if use_bias else None
+    n_converted = 0
 
     for t in range(Tn):
         t0 = time.perf_counter()
@@ -277,6 +327,7 @@ def _run(seq: Sequence, config: FilterConfig, progress, guard: NumericalGuard) -
         n_init, n_rej_new, n_num_new = _augment(
             st, tracks[fresh], z[fresh], cal, imu_T_cam, V, config, off, slot_of
         )
+        n_converted += _convert_linear(st, config, imu_T_cam, off)
         if n_num + n_num_new:
             guard.reject(t, "innovation covariance or triangulation not finite", n_num + n_num_new)
         if not config.keep_landmarks:
@@ -295,10 +346,11 @@ def _run(seq: Sequence, config: FilterConfig, progress, guard: NumericalGuard) -
     # Landmarks still in the state at the end.
     if st.tracks.size:
         slots = np.arange(st.tracks.size)
-        est.landmarks[st.tracks] = st.landmarks
-        est.landmark_cov[st.tracks] = landmark_world_cov(st.P, st.landmarks, slots, off)
+        est.landmarks[st.tracks], est.landmark_cov[st.tracks] = st.world_landmarks(slots, off)
     est.pose_cov = left_cov_to_estimate(est.poses, pose_P)
     est.pose_cov = 0.5 * (est.pose_cov + np.swapaxes(est.pose_cov, -1, -2))
+    if config.landmark_parameterisation == "inverse-depth":
+        est.info["inverse_depth_converted"] = n_converted
     if use_bias:
         est.info["gyro_bias"] = bias_hist[-1].tolist()
         est.info["gyro_bias_sigma_final"] = np.sqrt(np.diag(st.P[B_IDX, B_IDX])).tolist()
@@ -315,6 +367,10 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConf
     if st.bias is not None:
         u[3:] -= st.bias
     twist = tau * u
+    if st.lm_id.any():
+        ok = _propagate_groups(st, twist, tau, W_chol, config, off)
+        st.T = st.T @ se3_exp_single(twist)
+        return ok
     B = noise_jacobian(st.T, st.landmarks, twist, st.bias is not None)
     P = st.P
     if st.bias is not None:
@@ -330,6 +386,30 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConf
         return False
     P += BL @ BL.T
     st.T = st.T @ se3_exp_single(twist)
+    return True
+
+
+def _propagate_groups(st: _State, twist, tau: float, W_chol, config: FilterConfig, off: int) -> bool:
+    """:func:`_propagate`'s covariance step with inverse-depth slots in the state: their rows
+    get no noise and no bias coupling, so only the rows ``g`` of the pose, the bias and the
+    group landmarks change (``B`` is zero elsewhere)."""
+    eu = np.flatnonzero(~st.lm_id)
+    g = np.concatenate([np.arange(off), (off + 3 * eu[:, None] + np.arange(3)).ravel()])
+    B = noise_jacobian(st.T, st.landmarks[eu], twist, st.bias is not None)  # rows g
+    P = st.P
+    gg = np.ix_(g, g)
+    if st.bias is not None:
+        F = -tau * B[:, 3:]
+        Pb = P[:, B_IDX].copy()
+        FPb = F @ Pb.T  # (|g|, n)
+        P[g] += FPb
+        P[:, g] += FPb.T
+        P[gg] += F @ Pb[B_IDX] @ F.T
+        P[B_IDX, B_IDX] += config.gyro_bias_walk**2 * tau * np.eye(3)
+    BL = tau * (B @ W_chol)
+    if not finite_norm2(BL):
+        return False
+    P[gg] += BL @ BL.T
     return True
 
 
@@ -349,6 +429,20 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
     C, c_t = cam_T_imu[:3, :3], cam_T_imu[:3, 3]
     lm = st.landmarks[slots]
     q = ((lm - p) @ R) @ C.T + c_t  # cam_T_imu T^-1 l
+    idm = st.lm_id[slots] if st.lm_id.size else np.zeros(k, dtype=bool)
+    has_id = bool(idm.any())
+    if has_id:  # inverse-depth rows: their camera points and full Jacobians (4 rows)
+        s_id = slots[idm]
+        R_a, p_a = st.anchor_R[s_id], st.anchor_p[s_id]
+        q_h, Hp_id, Hx_id = inverse_depth_jacobians(
+            st.T, idp.homogeneous_point(lm[idm], R_a, p_a), idp.homogeneous_jacobian(R_a, p_a),
+            cam_T_imu, M,
+        )
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q[idm] = np.where(q_h[:, 3:] > 0, q_h[:, :3] / q_h[:, 3:], np.nan)
+        Hp_all = np.zeros((k, 4, 6))
+        Hx_all = np.zeros((k, 4, 3))
+        Hp_all[idm], Hx_all[idm] = Hp_id, Hx_id
     disp = z[:, 0] - z[:, 2]
     valid = (
         (q[:, 2] > 1e-6)
@@ -366,10 +460,27 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
     A = observation_jacobian(st.T, q, cam_T_imu, M)
     P = st.P
     li = off + 3 * slots[:, None] + np.arange(3)  # (k, 3)
+    if has_id:
+        # An inverse-depth row is z = Hx (Px xi_pose + xi_x) + v with Px = Hx^+ H_pose, exactly
+        # (H_pose's columns lie in Hx's range), so below it is handled as a Euclidean one with
+        # A = Hx and [Px, I] in place of [-I at p, 0 at R, I at l].
+        idm = idm[valid]
+        has_id = bool(idm.any())
+    if has_id:
+        Hx, Hp = Hx_all[valid][idm], Hp_all[valid][idm]
+        A[idm] = Hx
+        HtVi = np.swapaxes(Hx, 1, 2) @ Vinv
+        Px_all = np.zeros((k, 3, 6))
+        Px_all[:, :, :3] = -np.eye(3)  # a group landmark's [-I at p, 0 at R]
+        Px_all[idm] = batched_solve(HtVi @ Hx, HtVi @ Hp)
     if gate is not None:
         Pll = P[li[:, :, None], li[:, None, :]]
-        Plp = P[li, :3]  # (k, 3, 3): rows l, cols p
-        Pe = Pll - Plp - np.swapaxes(Plp, 1, 2) + P[:3, :3]
+        if has_id:  # E_j P E_j^T with E_j = [Px_j at the pose, I at l_j]
+            PxPpl = Px_all @ P[:6][:, li].transpose(1, 0, 2)  # (k, 3, 3)
+            Pe = Pll + PxPpl + np.swapaxes(PxPpl, 1, 2) + Px_all @ P[:6, :6] @ np.swapaxes(Px_all, 1, 2)
+        else:
+            Plp = P[li, :3]  # (k, 3, 3): rows l, cols p
+            Pe = Pll - Plp - np.swapaxes(Plp, 1, 2) + P[:3, :3]
         S4 = A @ Pe @ np.swapaxes(A, 1, 2) + V
         m2 = np.einsum("ki,ki->k", r, batched_solve(S4, r[:, :, None])[:, :, 0])
         ok = m2 <= gate  # NaN (singular S4, overflow) is rejected
@@ -379,6 +490,9 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
         if not ok.any():
             return 0, n_rej, n_num
         slots, r, A, li = slots[ok], r[ok], A[ok], li[ok]
+        if has_id:
+            idm, Px_all = idm[ok], Px_all[ok]
+            has_id = bool(idm.any())
         k = slots.size
     # Compress each 4-d stereo observation to an equivalent 3-d one on xi_l - xi_p (exact
     # for the linear-Gaussian update: A has full column rank).
@@ -394,12 +508,20 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
         if not fin.any():
             return 0, n_rej, n_num
         slots, li, Lam_inv, y3 = slots[fin], li[fin], Lam_inv[fin], y3[fin]
+        if has_id:
+            idm, Px_all = idm[fin], Px_all[fin]
+            has_id = bool(idm.any())
         k = slots.size
     y = y3.ravel()  # (3k,)
     lflat = li.ravel()
     n = P.shape[0]
-    PHt = (P.take(lflat, axis=1).reshape(n, k, 3) - P[:, None, :3]).reshape(n, 3 * k)  # P E^T
-    S = (PHt.take(lflat, axis=0).reshape(k, 3, 3 * k) - PHt[None, :3, :]).reshape(3 * k, 3 * k)
+    if has_id:  # P E^T and E P E^T with E's rows [Px_j, I at l_j]
+        Px = Px_all.reshape(3 * k, 6)
+        PHt = P.take(lflat, axis=1) + P[:, :6] @ Px.T
+        S = PHt.take(lflat, axis=0) + Px @ PHt[:6]
+    else:
+        PHt = (P.take(lflat, axis=1).reshape(n, k, 3) - P[:, None, :3]).reshape(n, 3 * k)  # P E^T
+        S = (PHt.take(lflat, axis=0).reshape(k, 3, 3 * k) - PHt[None, :3, :]).reshape(3 * k, 3 * k)
     S.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :] += Lam_inv
     L, info = dpotrf(S, lower=1, clean=0, overwrite_a=1)
     if info != 0:
@@ -414,9 +536,27 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
         raise UpdateRejected(
             f"gain of {k} observations not finite or a variance not positive after it"
         )
+    x_prior = st.landmarks
     st.P = P_new
     st.T, st.landmarks, st.bias = retract(st.T, st.landmarks, delta, st.bias)
+    if st.lm_id.any():
+        ids = np.flatnonzero(st.lm_id)
+        st.landmarks[ids] = x_prior[ids] + delta[off:].reshape(-1, 3)[ids]  # additive error
+        _transport_inverse_depth(st, ids, x_prior[ids], off)
     return k, n_rej, n_num
+
+
+def _transport_inverse_depth(st: _State, ids: np.ndarray, x_prior: np.ndarray, off: int) -> None:
+    """Keep the world-change directions unobservable for inverse-depth slots ``ids`` after an
+    update (module docstring): ``P <- T P T^T``, ``T`` adding ``N_j(x+) - N_j(x-)`` (ID-7)
+    times the pose rows to the rows of slot j."""
+    R_a, p_a = st.anchor_R[ids], st.anchor_p[ids]
+    C = np.zeros((st.lm_id.size, 3, 6))
+    C[ids] = idp.gauge_rows(st.landmarks[ids], R_a, p_a) - idp.gauge_rows(x_prior, R_a, p_a)
+    C = C.reshape(-1, 6)  # every landmark row (zero for group ones): contiguous slices
+    P = st.P
+    P[off:] += C @ P[:6]
+    P[:, off:] += P[:, :6] @ C.T
 
 
 def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off, slot_of):
@@ -447,6 +587,15 @@ def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off
         Cn = Gz @ V @ np.swapaxes(Gz, 1, 2)
     c = pc @ imu_T_cam[:3, :3].T + imu_T_cam[:3, 3]
     lm_new = c @ R.T + p
+    inverse_depth = config.landmark_parameterisation == "inverse-depth"
+    if inverse_depth:  # x (ID-3) with dx = N_j [xi_p; xi_R] + Jz dz (N_j: ID-7 at the anchor)
+        x, Jz = idp.from_stereo(z[ok], cal.K, cal.baseline)
+        world_T_cam = st.T @ imu_T_cam
+        R_a = np.broadcast_to(world_T_cam[:3, :3], (k, 3, 3)).copy()
+        p_a = np.broadcast_to(world_T_cam[:3, 3], (k, 3)).copy()
+        Jd = idp.gauge_rows(x, R_a, p_a)
+        Cn = np.broadcast_to(Jz @ V @ Jz.T, (k, 3, 3))
+        lm_new = x
     n_num = 0
     if not all_finite(lm_new, Cn):
         fin = finite_rows(lm_new) & finite_rows(Cn)
@@ -455,15 +604,22 @@ def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off
         if n_num == k:
             return 0, n_rej, n_num
         tracks, lm_new, Cn = tracks[fin], lm_new[fin], Cn[fin]
+        if inverse_depth:
+            Jd, R_a, p_a = Jd[fin], R_a[fin], p_a[fin]
         k = tracks.size
     P = st.P
     n = P.shape[0]
     Pn = np.empty((n + 3 * k, n + 3 * k))
     Pn[:n, :n] = P
-    cross = np.tile(P[:, :3], (1, k))  # xi_l = xi_p + noise
+    if inverse_depth:
+        Jd = Jd.reshape(3 * k, 6)
+        cross = P[:, :6] @ Jd.T
+        Pn[n:, n:] = Jd @ cross[:6]
+    else:
+        cross = np.tile(P[:, :3], (1, k))  # xi_l = xi_p + noise
+        Pn[n:, n:] = np.tile(P[:3, :3], (k, k))
     Pn[:n, n:] = cross
     Pn[n:, :n] = cross.T
-    Pn[n:, n:] = np.tile(P[:3, :3], (k, k))
     bi = n + 3 * np.arange(k)[:, None, None] + np.arange(3)[None, :, None]
     bj = n + 3 * np.arange(k)[:, None, None] + np.arange(3)[None, None, :]
     Pn[bi, bj] += Cn
@@ -472,7 +628,46 @@ def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off
     st.landmarks = np.vstack([st.landmarks, lm_new])
     st.tracks = np.concatenate([st.tracks, tracks])
     slot_of[tracks] = K0 + np.arange(k)
+    st.lm_id = np.concatenate([st.lm_id, np.full(k, inverse_depth)])
+    if inverse_depth:
+        st.anchor_R = np.concatenate([st.anchor_R, R_a])
+        st.anchor_p = np.concatenate([st.anchor_p, p_a])
+    else:
+        st.anchor_R = np.concatenate([st.anchor_R, np.zeros((k, 3, 3))])
+        st.anchor_p = np.concatenate([st.anchor_p, np.zeros((k, 3))])
     return k, n_rej, n_num
+
+
+def _convert_linear(st: _State, config: FilterConfig, imu_T_cam: np.ndarray, off: int) -> int:
+    """Inverse-depth slots whose linearity index (ID-5) seen from the current camera is below
+    ``inverse_depth_linearity`` join the group (:func:`_to_group`); returns how many."""
+    if config.inverse_depth_linearity <= 0 or not st.lm_id.any():
+        return 0
+    ids = np.flatnonzero(st.lm_id)
+    rho_rows = off + 3 * ids + 2
+    centre = st.T[:3, :3] @ imu_T_cam[:3, 3] + st.T[:3, 3]
+    L = idp.linearity_index(
+        st.landmarks[ids], st.P[rho_rows, rho_rows], st.anchor_R[ids], st.anchor_p[ids], centre
+    )
+    ids = ids[L < config.inverse_depth_linearity]
+    if ids.size:
+        _to_group(st, ids, off)
+    return int(ids.size)
+
+
+def _to_group(st: _State, ids: np.ndarray, off: int) -> None:
+    """Inverse-depth slots ``ids`` to group landmarks ``l = m(x)`` (ID-6): their error becomes
+    ``xi_l = J dx + l^ xi_R`` (``l_true - l ~ -l^ xi_R + xi_l``), ``P <- T P T^T``."""
+    x, R_a = st.landmarks[ids], st.anchor_R[ids]
+    J = idp.world_jacobian(x, R_a)
+    m = idp.world_point(x, R_a, st.anchor_p[ids])
+    L = hat(m)
+    rows = off + 3 * ids[:, None] + np.arange(3)  # (k, 3)
+    P = st.P
+    P[rows] = J @ P[rows] + L @ P[R_IDX]
+    P[:, rows] = np.einsum("nkj,kij->nki", P[:, rows], J) + np.einsum("nj,kij->nki", P[:, R_IDX], L)
+    st.landmarks[ids] = m
+    st.lm_id[ids] = False
 
 
 def _marginalise(st: _State, last_frame, t, off, slot_of, done, est: Estimate) -> None:
@@ -485,12 +680,12 @@ def _marginalise(st: _State, last_frame, t, off, slot_of, done, est: Estimate) -
     gone = np.flatnonzero(ended)
     keep = np.flatnonzero(~ended)
     tr = st.tracks[gone]
-    est.landmarks[tr] = st.landmarks[gone]
-    est.landmark_cov[tr] = landmark_world_cov(st.P, st.landmarks[gone], gone, off)
+    est.landmarks[tr], est.landmark_cov[tr] = st.world_landmarks(gone, off)
     done[tr] = True
     slot_of[tr] = -1
     idx = np.concatenate([np.arange(off), (off + 3 * keep[:, None] + np.arange(3)).ravel()])
     st.P = st.P.take(idx, axis=0).take(idx, axis=1)
     st.landmarks = st.landmarks[keep]
     st.tracks = st.tracks[keep]
+    st.lm_id, st.anchor_R, st.anchor_p = st.lm_id[keep], st.anchor_R[keep], st.anchor_p[keep]
     slot_of[st.tracks] = np.arange(keep.size)

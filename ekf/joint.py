@@ -11,6 +11,10 @@
   value for the optimal gain) at a fraction of its cost; ``P`` is symmetrised after each step.
 * New landmarks: ``m = U^-1 imu_T_cam p_cam(z)`` with covariance ``J_d P_dd J_d^T + J_z V J_z^T``
   and cross-covariance ``J_d P_d,x`` to the pose, bias and every other active landmark.
+* Landmark parameterisation (``config.landmark_parameterisation``): world ``m`` ("euclidean"),
+  or anchored inverse depth ``x = [alpha, beta, rho]`` (:mod:`ekf.inverse_depth`), whose rows
+  are turned into ``m`` (``P <- J P J^T``, ID-6) once the linearity index (ID-5) allows; the two
+  kinds share the state, each landmark has 3 rows either way.
 * Tracks whose last observation has passed are marginalised out (deleting their rows and
   columns is exact for a Gaussian); their final mean and 3x3 covariance go to the map.
   ``config.keep_landmarks`` keeps every landmark in the state instead (textbook EKF SLAM;
@@ -26,7 +30,8 @@ from scipy.linalg.blas import dsyrk
 from ekf.config import FilterConfig
 from ekf.estimate import Estimate
 from ekf.numerics import NumericalGuard, UpdateRejected, all_finite, finite_norm2, finite_rows
-from ekf.geometry import adjoint, hat
+from ekf import inverse_depth as idp
+from ekf.geometry import adjoint, hat, se3_inv
 from ekf.prediction import (
     se3_exp_single,
     bias_transition,
@@ -66,6 +71,13 @@ class JointState:
         self.linearisation = config.joint_linearisation
         self.n_numerical = 0  # observations the last update gated out for numerical reasons
         self.lm_track = np.zeros(0, dtype=np.int64)
+        # Inverse-depth landmarks: which slots, and each one's anchor (world_T_camera).
+        self.inverse_depth = config.landmark_parameterisation == "inverse-depth"
+        self.linearity = config.inverse_depth_linearity
+        self.lm_id = np.zeros(0, dtype=bool)
+        self.n_converted = 0  # inverse-depth landmarks turned Euclidean so far
+        self.anchor_R = np.zeros((0, 3, 3))
+        self.anchor_p = np.zeros((0, 3))
         self.slot = -np.ones(n_tracks, dtype=np.int64)
         self.ever = np.zeros(n_tracks, dtype=bool)
         # The map: final landmark means and covariances (NaN where none).
@@ -79,6 +91,36 @@ class JointState:
     def landmark_rows(self, slots: np.ndarray) -> np.ndarray:
         """Rows of ``P`` (k, 3) for landmark slots (k,)."""
         return self.core + 3 * slots[:, None] + _AR3
+
+    # --- the measurement of either kind of landmark --------------------------------------
+    def camera_points(self, model: StereoModel, slots: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """``q = cam_T_imu U m_h`` (k, 4) of landmark coordinates ``x`` (k, 3) in ``slots``."""
+        i = self.lm_id[slots] if self.inverse_depth else None
+        if i is None or not i.any():
+            return model.camera_points(self.U, x)
+        q = np.empty((x.shape[0], 4))
+        s = slots[i]
+        m_h = idp.homogeneous_point(x[i], self.anchor_R[s], self.anchor_p[s])
+        q[i] = m_h @ (model.cam_T_imu @ self.U).T
+        if not i.all():
+            q[~i] = model.camera_points(self.U, x[~i])
+        return q
+
+    def jacobians(self, model: StereoModel, slots, x, q):
+        """Reduced ``(H_pose (k, 3, 6), H_landmark (k, 3, 3))`` at coordinates ``x``."""
+        i = self.lm_id[slots] if self.inverse_depth else None
+        if i is None or not i.any():
+            return model.jacobians(self.U, x, q, reduced=True)
+        s = slots[i]
+        R_a, p_a = self.anchor_R[s], self.anchor_p[s]
+        m_h = idp.homogeneous_point(x[i], R_a, p_a)
+        G = idp.homogeneous_jacobian(R_a, p_a)
+        if i.all():
+            return model.homogeneous_jacobians(self.U, m_h, G, q)
+        Hp, Hm = np.empty((x.shape[0], 3, 6)), np.empty((x.shape[0], 3, 3))
+        Hp[i], Hm[i] = model.homogeneous_jacobians(self.U, m_h, G, q[i])
+        Hp[~i], Hm[~i] = model.jacobians(self.U, x[~i], q[~i], reduced=True)
+        return Hp, Hm
 
     # --- prediction ---------------------------------------------------------------------
     def predict(self, tau: float, u: np.ndarray, config: FilterConfig) -> None:
@@ -116,12 +158,12 @@ class JointState:
             return 0, 0
         slots = self.slot[tracks]
         m = self.lm_mean[slots]
-        q = model.camera_points(self.U, m)
+        q = self.camera_points(model, slots, m)
         ok = model.valid_predictions(q)
         fej = self.linearisation == "fej"
         if fej:  # Jacobians at the landmarks' first estimates (FEJ), residuals at the current ones
             m_lin = self.lm_first[slots]
-            q_lin = model.camera_points(self.U, m_lin)
+            q_lin = self.camera_points(model, slots, m_lin)
             ok &= model.valid_predictions(q_lin)
         if not np.all(ok):
             slots, m, q, z = slots[ok], m[ok], q[ok], z[ok]
@@ -133,9 +175,9 @@ class JointState:
         P = self.P
         N = P.shape[0]
         if fej:
-            Hp, Hm = model.jacobians(self.U, m_lin, q_lin, reduced=True)
+            Hp, Hm = self.jacobians(model, slots, m_lin, q_lin)
         else:
-            Hp, Hm = model.jacobians(self.U, m, q, reduced=True)  # (k,3,6), (k,3,3)
+            Hp, Hm = self.jacobians(model, slots, m, q)  # (k,3,6), (k,3,3)
         rows = self.landmark_rows(slots)  # (k,3)
         # P H^T (N, 3k), using the sparsity of H: 6 pose columns + 3 landmark columns per row.
         PHt = P[:, :6] @ Hp.reshape(3 * k, 6).T
@@ -182,15 +224,33 @@ class JointState:
             )
         symmetric_downdate(P, Y)  # P <- P - Y^T Y = P - K S K^T
         E = se3_exp_single(dx[:6])
-        R_prior = self.U[:3, :3].copy()
+        U_prior = self.U
         self.U = E @ self.U  # paper eq. 14: mu <- exp((K r)^) mu
         if self.core == 9:
             self.bias = self.bias + dx[6:9]
         dm = dx[self.core :].reshape(-1, 3)
+        x_prior = self.lm_mean
         self.lm_mean = self.lm_mean + dm
-        if self.linearisation != "standard":
-            gauge_transport(self.P, self.core, E, R_prior, dm if self.linearisation == "oc" else None)
+        if self.linearisation == "oc" and self.inverse_depth and self.lm_id.any():
+            transport(self.P, self.core, E, self.transport_rows(dm, x_prior, U_prior))
+        elif self.linearisation != "standard":
+            gauge_transport(self.P, self.core, E, U_prior[:3, :3], dm if self.linearisation == "oc" else None)
         return a, int(tracks.size) - a
+
+    def transport_rows(self, dm: np.ndarray, x_prior: np.ndarray, U_prior: np.ndarray) -> np.ndarray:
+        """The landmark rows ``C`` (3n, 6) of :func:`transport` with inverse-depth landmarks in
+        the state: ``C_j = (N_j- - N_j+) Ad(U-)^-1`` for each (``N_j`` the gauge rows: ID-7 for
+        an inverse-depth one, ``[I, -m^]`` for a Euclidean one, where it is
+        :func:`gauge_transport`'s ``[0, dm^ R-^T]``), so that ``T N(U-, x-) = N(E U-, x+)``."""
+        C = np.zeros((self.n_landmarks, 3, 6))
+        ids = np.flatnonzero(self.lm_id)
+        eu = np.flatnonzero(~self.lm_id)
+        if eu.size:
+            C[eu, :, 3:] = hat(dm[eu]) @ U_prior[:3, :3].T
+        R_a, p_a = self.anchor_R[ids], self.anchor_p[ids]
+        dN = idp.gauge_rows(x_prior[ids], R_a, p_a) - idp.gauge_rows(self.lm_mean[ids], R_a, p_a)
+        C[ids] = dN @ adjoint(se3_inv(U_prior))
+        return C.reshape(-1, 6)
 
     # --- landmark initialisation and marginalisation ------------------------------------
     def initialise(
@@ -210,6 +270,7 @@ class JointState:
             fin = finite_rows(m) & finite_rows(J_d) & finite_rows(Cz)
             n_bad = int(fin.size - fin.sum())
             tracks, m, J_d, Cz, ends_now = tracks[fin], m[fin], J_d[fin], Cz[fin], ends_now[fin]
+            z = z[fin]
             if tracks.size == 0:
                 return n_bad
         Pdd = self.P[:6, :6]
@@ -225,6 +286,14 @@ class JointState:
         if n == 0:
             return n_bad
         m, J_d, Cz = m[add], J_d[add], Cz[add]
+        if self.inverse_depth:  # the same landmarks in anchored inverse depth (ID-3, ID-4)
+            x, Jz = idp.from_stereo(z[add], model.K, model.baseline)
+            world_T_cam = se3_inv(self.U) @ model.imu_T_cam
+            R_a = np.broadcast_to(world_T_cam[:3, :3], (n, 3, 3)).copy()
+            p_a = np.broadcast_to(world_T_cam[:3, 3], (n, 3)).copy()
+            J_d = idp.inverse_jacobian(x, R_a) @ J_d
+            Cz = np.broadcast_to(Jz @ model.V @ Jz.T, (n, 3, 3))
+            m = x
         Jd = J_d.reshape(3 * n, 6)
         B = Jd @ self.P[:6, :]  # cross-covariance with the whole state (3n, N)
         C = B[:, :6] @ Jd.T
@@ -241,7 +310,59 @@ class JointState:
         self.lm_first = np.concatenate([self.lm_first, m])
         self.lm_track = np.concatenate([self.lm_track, tracks[add]])
         self.slot[tracks[add]] = first + np.arange(n)
+        if self.inverse_depth:
+            self.lm_id = np.concatenate([self.lm_id, np.ones(n, dtype=bool)])
+            self.anchor_R = np.concatenate([self.anchor_R, R_a])
+            self.anchor_p = np.concatenate([self.anchor_p, p_a])
         return n_bad
+
+    # --- inverse depth -> Euclidean ----------------------------------------------------
+    def convert_linear(self, model: StereoModel) -> int:
+        """Turn every inverse-depth landmark whose linearity index (ID-5) seen from the current
+        camera is below ``inverse_depth_linearity`` into world ``m`` (ID-6); returns how many."""
+        if not self.inverse_depth or self.linearity <= 0 or not self.lm_id.any():
+            return 0
+        ids = np.flatnonzero(self.lm_id)
+        rho_rows = self.core + 3 * ids + 2
+        centre = (se3_inv(self.U) @ model.imu_T_cam)[:3, 3]
+        L = idp.linearity_index(
+            self.lm_mean[ids], self.P[rho_rows, rho_rows], self.anchor_R[ids], self.anchor_p[ids], centre
+        )
+        ids = ids[L < self.linearity]
+        if ids.size:
+            self.to_euclidean(ids)
+            self.n_converted += int(ids.size)
+        return int(ids.size)
+
+    def to_euclidean(self, ids: np.ndarray) -> None:
+        """(ID-6) Inverse-depth slots ``ids`` to world ``m``: ``P <- J P J^T`` on their rows.
+
+        ``J`` is taken at the linearisation point of the landmark's Jacobians: the current
+        estimate, or with "fej" the first one (so that ``J N(x_first) = [I, -m_first^]``, the
+        Euclidean first-estimate nullspace; at the current estimate FEJ's ANEES went 5 -> 61)."""
+        x, R_a, p_a = self.lm_mean[ids], self.anchor_R[ids], self.anchor_p[ids]
+        J = idp.world_jacobian(self.lm_first[ids] if self.linearisation == "fej" else x, R_a)
+        rows = self.landmark_rows(ids)  # (k, 3)
+        P = self.P
+        P[rows] = J @ P[rows]
+        P[:, rows] = np.einsum("nkj,kij->nki", P[:, rows], J)
+        self.lm_mean[ids] = idp.world_point(x, R_a, p_a)
+        self.lm_first[ids] = idp.world_point(self.lm_first[ids], R_a, p_a)
+        self.lm_id[ids] = False
+
+    def world_landmarks(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World means (k, 3) and covariances (k, 3, 3) of ``slots`` (first order for
+        inverse-depth ones, ID-6)."""
+        mean, cov = self.lm_mean[slots].copy(), self.landmark_covs(slots)
+        if self.inverse_depth:
+            i = self.lm_id[slots]
+            if i.any():
+                s = slots[i]
+                x, R_a = self.lm_mean[s], self.anchor_R[s]
+                J = idp.world_jacobian(x, R_a)
+                mean[i] = idp.world_point(x, R_a, self.anchor_p[s])
+                cov[i] = J @ cov[i] @ np.swapaxes(J, 1, 2)
+        return mean, cov
 
     def landmark_covs(self, slots: np.ndarray) -> np.ndarray:
         rows = self.landmark_rows(slots)
@@ -253,8 +374,7 @@ class JointState:
         if tracks.size == 0:
             return
         slots = self.slot[tracks]
-        self.map_mean[tracks] = self.lm_mean[slots]
-        self.map_cov[tracks] = self.landmark_covs(slots)
+        self.map_mean[tracks], self.map_cov[tracks] = self.world_landmarks(slots)
         keep_lm = np.ones(self.n_landmarks, dtype=bool)
         keep_lm[slots] = False
         keep = np.concatenate([np.ones(self.core, dtype=bool), np.repeat(keep_lm, 3)])
@@ -264,14 +384,17 @@ class JointState:
         self.lm_mean = self.lm_mean[keep_lm]
         self.lm_first = self.lm_first[keep_lm]
         self.lm_track = self.lm_track[keep_lm]
+        if self.inverse_depth:
+            self.lm_id = self.lm_id[keep_lm]
+            self.anchor_R = self.anchor_R[keep_lm]
+            self.anchor_p = self.anchor_p[keep_lm]
         self.slot[self.lm_track] = np.arange(self.n_landmarks)
 
     def flush(self) -> None:
         """Move every active landmark to the map (end of the run)."""
         if self.n_landmarks:
             slots = np.arange(self.n_landmarks)
-            self.map_mean[self.lm_track] = self.lm_mean
-            self.map_cov[self.lm_track] = self.landmark_covs(slots)
+            self.map_mean[self.lm_track], self.map_cov[self.lm_track] = self.world_landmarks(slots)
 
 
 def symmetric_downdate(P: np.ndarray, Y: np.ndarray) -> None:
@@ -329,6 +452,16 @@ def gauge_transport(
     P[:, :6] = P[:, :6] @ A.T
 
 
+def transport(P: np.ndarray, core: int, E: np.ndarray, C: np.ndarray) -> None:
+    """``P <- T P T^T`` in place with ``T = [[Ad(E), 0, 0], [0, I, 0], [C, 0, I]]`` (pose,
+    bias, landmark rows; ``C`` (3n, 6)): :func:`gauge_transport` with general landmark rows."""
+    A = adjoint(E)
+    P[core:] += C @ P[:6]
+    P[:, core:] += P[:, :6] @ C.T
+    P[:6] = A @ P[:6]
+    P[:, :6] = P[:, :6] @ A.T
+
+
 def run_joint(
     seq: Sequence, config: FilterConfig = FilterConfig(), progress: Progress = None
 ) -> Estimate:
@@ -365,6 +498,7 @@ def run_joint(
                 n_num += n_bad_init
                 if n_num:
                     guard.reject(t, "innovation covariance or triangulation not finite", n_num)
+                st.convert_linear(model)
                 max_dim = max(max_dim, st.P.shape[0])
                 if not config.keep_landmarks:
                     st.marginalise(ending[t])
@@ -375,6 +509,8 @@ def run_joint(
             report_progress(progress, t, seq.n_frames)
     st.flush()
     info["max_state_dim"] = int(max_dim)
+    if st.inverse_depth:
+        info["inverse_depth_converted"] = st.n_converted
     if config.gyro_bias:
         info["gyro_bias"] = st.bias.tolist()
     return build_estimate("ekf-joint", seq, rec, st.map_mean, st.map_cov, config, info, guard)

@@ -129,10 +129,14 @@ class StereoModel:
         return ok
 
     def valid_predictions(self, q: np.ndarray) -> np.ndarray:
-        """Boolean (n,): predicted camera point in front of the camera and within max_depth."""
-        ok = q[:, 2] > MIN_DEPTH
+        """Boolean (n,): predicted camera point in front of the camera and within max_depth.
+
+        ``q`` (n, 4) is homogeneous: depth ``q3 / q4`` (``q4 = 1`` for a Euclidean landmark,
+        ``rho > 0`` for an inverse-depth one, :mod:`ekf.inverse_depth`)."""
+        w = q[:, 3]
+        ok = (w > 0) & (q[:, 2] > MIN_DEPTH * w)
         if self.max_depth is not None:
-            ok &= q[:, 2] <= self.max_depth
+            ok &= q[:, 2] <= self.max_depth * w
         return ok
 
     # --- prediction and Jacobians -------------------------------------------------------
@@ -180,6 +184,24 @@ class StereoModel:
         Hp[:, :, :3] = ARc
         Hp[:, :, 3:] = -ARc @ hat(s)
         return Hp, A @ CU[:3, :3]
+
+    def homogeneous_jacobians(
+        self, U: np.ndarray, m_h: np.ndarray, G: np.ndarray, q: np.ndarray, reduced: bool = True
+    ):
+        """:meth:`jacobians` for a landmark held as a homogeneous world point ``m_h`` (n, 4)
+        with ``dm_h/dx = G`` (n, 4, 3) (an inverse-depth landmark, ID-2 of
+        :mod:`ekf.inverse_depth`), ``q = cam_T_imu U m_h``:
+        ``H_x = M dpi/dq(q) cam_T_imu U G`` and
+        ``H_pose = M dpi/dq(q) cam_T_imu (U m_h)^odot``, ``(s; w)^odot = [[w I, -s^], [0, 0]]``."""
+        Mx = self.M3 if reduced else self.M
+        A = Mx @ dpi_dq(q)  # (n, r, 4)
+        CU = self.cam_T_imu @ U
+        s = m_h @ U.T  # U m_h, (n, 4)
+        ARc = A[:, :, :3] @ self.cam_T_imu[:3, :3]
+        Hp = np.empty((q.shape[0], Mx.shape[0], 6))
+        Hp[:, :, :3] = ARc * s[:, 3, None, None]
+        Hp[:, :, 3:] = -ARc @ hat(s[:, :3])
+        return Hp, A @ CU @ G
 
     def reduced_innovation(self, z: np.ndarray, q: np.ndarray) -> np.ndarray:
         """``C (z - M pi(q))`` (n, 3): the innovation in the reduced rows."""

@@ -17,7 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ekf.config import FILTER_RULES, VELOCITY_PAIRINGS, FilterConfig, settings_tables, show_path
+from ekf.config import (
+    FILTER_RULES,
+    LANDMARK_PARAMETERISATIONS,
+    VELOCITY_PAIRINGS,
+    FilterConfig,
+    settings_tables,
+    show_path,
+)
 from ekf.errors import InputError
 from ekf.estimate import Estimate
 from graph.settings import GAP_PRIOR_MODES, INITIALISERS, SMOOTHER_RULES, SmootherSettings
@@ -33,6 +40,7 @@ _FLAG_FIELDS = {
     "velocity_pairing": "velocity_pairing",
     "max_depth": "max_depth",
     "min_disparity": "min_disparity",
+    "landmarks": "landmark_parameterisation",
 }
 #: Smoother flag (argparse dest) -> SmootherSettings field.
 _SMOOTHER_FLAG_FIELDS = {"smoother_init": "init", "gap_prior": "gap_twist_prior"}
@@ -108,6 +116,8 @@ def add_filter_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--max-depth", metavar="M", help="reject points beyond this depth")
     g.add_argument("--min-disparity", metavar="PX", help="reject smaller disparities")
+    g.add_argument("--landmarks", metavar="{" + ",".join(LANDMARK_PARAMETERISATIONS) + "}",
+                   help="landmark parameterisation of ekf-joint and ekf-invariant")
     s = parser.add_argument_group("smoother settings (override the [smoother] table of --config)")
     s.add_argument("--smoother-init", metavar="{" + ",".join(INITIALISERS) + "}",
                    help="the batch smoother's initial trajectory (default ekf)")

