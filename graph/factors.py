@@ -190,6 +190,8 @@ class NoiseModels:
     landmark_prior: gtsam.noiseModel.Base
     pose_prior: gtsam.noiseModel.Base
     motion: list = field(default_factory=list)  # one per interval
+    #: The stereo noise without the robust kernel (the marginals': :func:`gaussian_stereo`).
+    stereo_gaussian: gtsam.noiseModel.Base | None = None
 
     @classmethod
     def create(cls, seq: Sequence, config: FilterConfig, settings: SmootherSettings,
@@ -202,15 +204,18 @@ class NoiseModels:
             calibration=gtsam.Cal3_S2Stereo(c.fsu, c.fsv, 0.0, c.cu, c.cv, c.baseline),
             body_P_sensor=to_pose3(c.imu_T_cam),
             stereo=stereo,
+            stereo_gaussian=base,
             landmark_prior=gtsam.noiseModel.Isotropic.Sigma(3, settings.landmark_prior_sigma),
             pose_prior=gtsam.noiseModel.Gaussian.Covariance(estimate_cov_to_gtsam(config.initial_pose_cov)),
             motion=[gtsam.noiseModel.Gaussian.Covariance(cov) for cov in motion_covs],
         )
 
-    def stereo_factor(self, measured: np.ndarray, frame: int, track: int) -> gtsam.GenericStereoFactor3D:
+    def stereo_factor(self, measured: np.ndarray, frame: int, track: int,
+                      robust: bool = True) -> gtsam.GenericStereoFactor3D:
         return gtsam.GenericStereoFactor3D(
             gtsam.StereoPoint2(float(measured[0]), float(measured[1]), float(measured[2])),
-            self.stereo, X(int(frame)), L(int(track)), self.calibration, self.body_P_sensor,
+            self.stereo if robust else self.stereo_gaussian, X(int(frame)), L(int(track)),
+            self.calibration, self.body_P_sensor,
         )
 
 
@@ -260,6 +265,29 @@ def build_graph(poses: np.ndarray, landmarks: np.ndarray, rows: StereoRows,
         values.insert(BIAS_KEY, np.asarray(bias.initial, dtype=float))
         graph.add(gtsam.PriorFactorPoint3(BIAS_KEY, np.zeros(3), bias.prior))
     return GraphProblem(graph, values, rows, tracks)
+
+
+def gaussian_stereo(graph: gtsam.NonlinearFactorGraph, rows: StereoRows, first: int,
+                    noise: NoiseModels) -> gtsam.NonlinearFactorGraph:
+    """``graph`` with its stereo factors (``len(rows)`` of them from index ``first``, in
+    ``rows`` order) under the Gaussian pixel noise instead of the robust kernel: the graph of
+    the marginals. The kernel is how the solution is found in the presence of outliers (those
+    beyond ``outlier_threshold_px`` are then removed); its weights are not information the
+    inliers lack: with them an inlier residual beyond ``huber_k`` sigmas counts for less, and
+    the smoother's covariance on the default simulation came out too large (pose ANEES 4.90 over
+    50 runs, 95 % band [5.08, 7.00]; 5.24 with the Gaussian marginals)."""
+    out = gtsam.NonlinearFactorGraph()
+    for i in range(first):
+        out.add(graph.at(i))
+    measured = rows.measured
+    for i in range(len(rows)):
+        factor = noise.stereo_factor(measured[i], rows.frame[i], rows.track[i], robust=False)
+        if list(graph.at(first + i).keys()) != list(factor.keys()):
+            raise ValueError(f"graph factor {first + i} is not the stereo factor of row {i}")
+        out.add(factor)
+    for i in range(first + len(rows), graph.size()):
+        out.add(graph.at(i))
+    return out
 
 
 def poses_from_values(values: gtsam.Values, n_frames: int) -> np.ndarray:

@@ -48,6 +48,7 @@ from graph.factors import (
     cheirality_ok,
     dead_reckoning,
     fix_bias,
+    gaussian_stereo,
     interval_twists,
     keep_multi_observed,
     landmarks_from_values,
@@ -412,6 +413,7 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
         tick = time.perf_counter()
         graph, solution = (problem.graph, sol.values) if sol.bias_model is None else fix_bias(
             problem, sol.values, sol.deltas, sol.noise, sol.bias_model)
+        graph = gaussian_stereo(graph, rows, 1 + len(sol.deltas), sol.noise)
         est.pose_cov, est.landmark_cov = batch_marginals(graph, solution, T, problem.landmark_tracks, M)
         timing["marginals_s"] = time.perf_counter() - tick
     report(4, 4)

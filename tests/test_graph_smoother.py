@@ -133,3 +133,26 @@ def test_bad_input_is_an_input_error(noise_free):
         run_smoother(bad, CONFIG, init="dead-reckoning")
     with pytest.raises(InputError, match="init"):
         run_smoother(seq, CONFIG, init="magic")
+
+
+def test_marginals_are_the_gaussian_models_at_the_robust_solution(noisy):
+    """The covariances come from the stereo factors without the Huber kernel (graph.factors.
+    gaussian_stereo): the same factors and keys, Gaussian noise, so at least the information
+    of the robust weights (which are at most 1) and strictly more where a weight is below 1."""
+    from graph.factors import gaussian_stereo
+    from graph.marginals import batch_marginals
+    from graph.smoother import _solve
+
+    seq, cfg, settings = noisy.sequence, FilterConfig(gyro_bias=False), SmootherSettings(gyro_bias="off")
+    sol = _solve(seq, cfg, init=None, initial=None, settings=settings, progress=None)
+    problem, T, M = sol.problem, sol.cleaned.n_frames, sol.cleaned.n_tracks
+    gauss = gaussian_stereo(problem.graph, problem.rows, 1 + len(sol.deltas), sol.noise)
+    assert gauss.size() == problem.graph.size()
+    robust_cov, _ = batch_marginals(problem.graph, sol.values, T, problem.landmark_tracks, M)
+    gauss_cov, _ = batch_marginals(gauss, sol.values, T, problem.landmark_tracks, M)
+    est = run_smoother(seq, cfg, settings=settings)
+    np.testing.assert_allclose(est.pose_cov, gauss_cov, rtol=1e-6, atol=1e-14)
+    tr_g, tr_r = np.trace(gauss_cov[1:], axis1=1, axis2=2), np.trace(robust_cov[1:], axis1=1, axis2=2)
+    assert np.all(tr_g <= tr_r * (1 + 1e-9)) and np.mean(tr_g < tr_r * (1 - 1e-3)) > 0.9
+    with pytest.raises(ValueError, match="not the stereo factor"):
+        gaussian_stereo(problem.graph, problem.rows, 2 + len(sol.deltas), sol.noise)
