@@ -2,7 +2,8 @@
 
 * ``VISLAM_REGRESSION_BREAK`` deliberately breaks the estimators, to show the tests can fail:
   ``pixel-noise`` doubles the pixel noise the estimators assume (``FilterConfig.pixel_sigma``
-  x 2); ``no-cross-cov`` runs the joint filter without its pose-landmark cross-covariance
+  x 2); ``half-pixel-noise`` halves it (the estimators overconfident); ``no-cross-cov`` runs
+  the joint filter without its pose-landmark cross-covariance
   (``ekf-joint`` is replaced by ``ekf-decoupled``, the same filter with that block dropped).
   Unset (the default and CI) nothing is broken.
 * Real data: ``VISLAM_DATA`` or ``../shared/data/kitti-pr3`` beside the repository. Missing data
@@ -18,7 +19,7 @@ import pytest
 
 from ekf.config import FilterConfig
 
-BREAKS = ("pixel-noise", "no-cross-cov")
+BREAKS = ("pixel-noise", "half-pixel-noise", "no-cross-cov")
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -44,6 +45,8 @@ def broken_config(config: FilterConfig) -> FilterConfig:
     """``config`` with the deliberate break applied (if any)."""
     if regression_break() == "pixel-noise":
         return config.replace(pixel_sigma=2.0 * config.pixel_sigma)
+    if regression_break() == "half-pixel-noise":
+        return config.replace(pixel_sigma=0.5 * config.pixel_sigma)
     return config
 
 

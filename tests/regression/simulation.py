@@ -40,16 +40,9 @@ class MonteCarlo:
         return f"MonteCarlo(runs={self.runs}, frames={self.frames}, wall_s={self.wall_s:.1f})"
 
 
-#: The near field: landmarks within 25 m and no far points. There the stereo triangulation is
-#: close to linear over the pixel noise and the EKFs' Gaussian model holds; see NEAR_FIELD_WHY.
+#: The near field: landmarks within 25 m and no far points (the second case of the consistency
+#: tests; on the default simulation far points are held in inverse depth).
 NEAR_FIELD = {"max_depth": 25.0, "far_fraction": 0.0}
-NEAR_FIELD_WHY = (
-    "On the default simulation (landmarks to 60 m, disparities down to ~6 px) the EKFs are "
-    "overconfident (pose ANEES ~15, landmarks ~37 for 6 and 3): the first-order stereo model "
-    "does not hold for far points (measured: pixel noise 0.2 px, or no landmarks beyond 25 m, "
-    "gives ANEES 4.8 / 6.2; unscented initialisation did not fix it). The smoother is "
-    "consistent on both."
-)
 
 
 def run_monte_carlo(config: FilterConfig, run_name, runs: int = RUNS, frames: int = FRAMES,
