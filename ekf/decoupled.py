@@ -130,7 +130,7 @@ def run_decoupled(
                 if t > 0:
                     U, Sigma = predict_pose(U, Sigma, tau[t - 1], u[t - 1], W)
                     guard.check_state(t, U, Sigma)
-                valid = model.valid_observations(z)
+                valid = model.valid_observations(z, depth_limit=False)  # by predicted depth
                 known = valid & lm.initialised[tracks]
                 n_pose = n_num = 0
                 if np.any(known):

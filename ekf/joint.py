@@ -483,9 +483,10 @@ def run_joint(
                 if t > 0:
                     st.predict(tau[t - 1], u[t - 1], config)
                     guard.check_state(t, st.U, st.P[:c, :c])
-                valid = model.valid_observations(z)
+                valid = model.valid_observations(z, depth_limit=False)
                 active = st.slot[tracks] >= 0
                 upd = valid & active
+                valid &= model.valid_observations(z)  # new landmarks: within max_depth too
                 try:
                     n_acc, n_rej = st.update(model, tracks[upd], z[upd])
                     n_num = st.n_numerical

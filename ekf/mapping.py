@@ -34,9 +34,10 @@ class LandmarkMap:
         observations (included in ``n_rejected``) whose update or initialisation could not be
         computed (:mod:`ekf.numerics`; the landmark keeps its prior or stays uninitialised).
         """
-        valid = model.valid_observations(z)
+        valid = model.valid_observations(z, depth_limit=False)  # known: by predicted depth
         known = self.initialised[tracks]
         upd = valid & known
+        valid &= model.valid_observations(z)
         n_upd = n_num = 0
         if np.any(upd):
             tr = tracks[upd]

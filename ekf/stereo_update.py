@@ -117,12 +117,19 @@ class StereoModel:
         )
 
     # --- observation checks -------------------------------------------------------------
-    def valid_observations(self, z: np.ndarray) -> np.ndarray:
-        """Boolean (n,): finite pixels, disparity > max(min_disparity, 0), depth <= max_depth."""
+    def valid_observations(self, z: np.ndarray, depth_limit: bool = True) -> np.ndarray:
+        """Boolean (n,): finite pixels, disparity > max(min_disparity, 0), and (``depth_limit``)
+        the depth they triangulate to <= max_depth.
+
+        The depth limit is for starting a landmark. An observation of a landmark already in the
+        state is checked by its *predicted* depth (:meth:`valid_predictions`) instead: keeping
+        only the observations whose own noisy disparity is large enough keeps the noise draws
+        that make a point look near, a biased sample (with landmarks to 100 m and the cut at
+        100 m, ekf-joint's pose ANEES over 10 runs was 50 against ekf-invariant's 9.4)."""
         z = np.asarray(z, dtype=float)
         disparity = z[:, 0] - z[:, 2]
         ok = np.all(np.isfinite(z), axis=1) & (disparity > 0) & (disparity >= self.min_disparity)
-        if self.max_depth is not None:
+        if depth_limit and self.max_depth is not None:
             with np.errstate(divide="ignore", invalid="ignore"):
                 depth = self.K[0, 0] * self.baseline / disparity
             ok &= depth <= self.max_depth

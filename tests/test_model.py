@@ -253,9 +253,11 @@ def test_the_true_model_of_a_faulty_drive_makes_estimates_much_better(tmp_path):
         ate[name] = (ate_or_none(given.poses, gt_file.poses, align="se3"),
                      ate_or_none(given.poses, gt_model.poses, align="se3"),
                      ate_or_none(modelled.poses, gt_model.poses, align="se3"))
-    # measured: dead reckoning 1.78 / 1.56 -> 0.20 m; ekf-invariant 0.071 / 0.47 -> 0.025 m
+    # measured: dead reckoning 1.78 / 1.56 -> 0.20 m; ekf-invariant 0.045 / 0.47 -> 0.023 m
+    # (with Euclidean landmarks 0.071 / 0.47 -> 0.025 m: inverse depth copes better with the
+    # wrong file, against the file's own ground truth)
     dr_given, dr_given_true, dr_model = ate["dead-reckoning"]
     assert dr_model < 0.25 * dr_given and dr_model < 0.25 * dr_given_true, ate
     inv_given, inv_given_true, inv_model = ate["ekf-invariant"]
-    assert inv_model < 0.5 * inv_given and inv_model < 0.15 * inv_given_true, ate
+    assert inv_model < 0.6 * inv_given and inv_model < 0.15 * inv_given_true, ate
     assert inv_model < 0.05, ate

@@ -249,9 +249,15 @@ def test_one_corrupt_gyro_sample(name, caplog):
             assert rejections(est) <= 1
         # The reproductions were made with Euclidean landmarks.
         est = run_checked(name, seq, FilterConfig(landmark_parameterisation="euclidean"))
-        if name in crashed:  # recovered: the frame's update rejected, counted and logged
+        if name in crashed:  # recovered: no crash; a rejected update counted and logged
             assert est is not None, (name, frame)
-            assert rejections(est) >= 1
+            # Since updates of known landmarks are checked by predicted depth (not by the
+            # observation's own), ekf-joint and ekf-decoupled no longer reach a singular system
+            # on these spikes; the rejection path stays covered by the 1e5 px shift below.
+            if name == "ekf-invariant":
+                assert rejections(est) >= 1
+            if rejections(est) == 0:
+                continue
             assert est.info["numerical_rejection_frames"][0] >= frame
             assert any(name in r.getMessage() and "rejected" in r.getMessage()
                        for r in caplog.records if r.levelno == logging.WARNING)
