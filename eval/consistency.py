@@ -44,6 +44,25 @@ def chi2_bounds(n_runs: int, dof: int, probability: float = 0.95) -> tuple[float
     return float(lo), float(hi)
 
 
+#: Two-sided 95 % band of a single 6-dof pose NEES (chi-square): where a consistent estimator's
+#: mean pose NEES against ground truth belongs when it is read frame by frame over one drive.
+POSE_NEES_BAND = (1.237, 14.449)
+
+
+def reference_honesty(name: str, nees: float | None) -> str | None:
+    """The sentence that says a reference's covariance is not a fair yardstick on a drive: its
+    mean pose NEES against ground truth ``nees`` outside :data:`POSE_NEES_BAND`; None inside it
+    (or without a figure)."""
+    if nees is None or not np.isfinite(nees):
+        return None
+    lo, hi = POSE_NEES_BAND
+    if lo <= nees <= hi:
+        return None
+    word = "overconfident" if nees > hi else "underconfident"
+    return (f"The {name} is {word} on this drive: pose NEES {nees:.3g}, band [{lo:.2f}, {hi:.2f}]; "
+            "its covariance is not a fair yardstick here")
+
+
 def verdict(value: float, bounds: tuple[float, float]) -> str | None:
     """"inside", "above" (overconfident) or "below" (underconfident); None for a NaN value."""
     if value is None or not np.isfinite(value):

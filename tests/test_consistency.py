@@ -121,3 +121,14 @@ def test_position_deviation_rotates_the_covariance_to_the_world():
     dev, sigma = C.position_deviation(est, ref)
     assert np.allclose(dev[1], [1, 2, 3])
     assert np.allclose(sigma[0], [1, 2, 3]) and np.allclose(sigma[1], [2, 1, 3])
+
+
+def test_reference_honesty_sentence():
+    from eval.consistency import POSE_NEES_BAND, reference_honesty
+
+    np.testing.assert_allclose(POSE_NEES_BAND, chi2.ppf([0.025, 0.975], 6), atol=1e-3)
+    assert reference_honesty("smoother", 6.0) is None and reference_honesty("smoother", None) is None
+    assert reference_honesty("smoother", 97.0) == (
+        "The smoother is overconfident on this drive: pose NEES 97, band [1.24, 14.45]; "
+        "its covariance is not a fair yardstick here")
+    assert "underconfident" in reference_honesty("smoother", 0.5)
