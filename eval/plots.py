@@ -4,41 +4,133 @@ global backend switch, safe in worker processes and headless machines).
 Every function takes the output path first and writes it atomically (rendered to memory, then
 written through a temporary file and a rename). Axes: the world frame is the IMU frame at step
 0 (x forward, y left, z up), so the top view plots x (m) against y (m).
+
+Every estimator stays visible where curves coincide (ekf-joint under ekf-invariant, dead
+reckoning under mapping): each has its own colour, line style, width, drawing order and marker
+(:data:`STYLES`); the pairs that often coincide put a wide solid line under a narrow dashed one,
+and markers are placed every few per cent of the axes diagonal (``markevery``) at offsets that
+differ per estimator. A legend entry says when a curve is identical to another one. Legends sit
+outside the axes (constrained layout, ``loc="outside ..."``).
 """
 
 from __future__ import annotations
 
 import io
 import os
+import textwrap
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+from matplotlib.ticker import LogFormatter
 from scipy.stats import chi2
 
 from ekf.estimate import Estimate
 from eval.atomic import write_bytes
 
-#: One colour per estimator, stable across figures.
-COLOURS = {
-    "dead-reckoning": "tab:gray",
-    "mapping": "tab:brown",
-    "ekf-decoupled": "tab:orange",
-    "ekf-joint": "tab:blue",
-    "ekf-invariant": "tab:green",
-    "smoother": "tab:red",
-    "smoother-isam2": "tab:purple",
+#: Per estimator: colour, line style, line width, marker and drawing order (zorder), stable
+#: across figures. Pairs that often draw the same curve (dead-reckoning / mapping, ekf-joint /
+#: ekf-invariant) put a wide solid line first and a narrow dashed one on top, with other markers.
+STYLES: dict[str, dict] = {
+    "dead-reckoning": {"color": "tab:gray", "linestyle": "-", "linewidth": 3.4, "marker": "o",
+                       "zorder": 2.0},
+    "mapping": {"color": "tab:brown", "linestyle": (0, (5, 3)), "linewidth": 1.4, "marker": "x",
+                "zorder": 2.6},
+    "ekf-decoupled": {"color": "tab:orange", "linestyle": "-", "linewidth": 1.5, "marker": "s",
+                      "zorder": 2.2},
+    "ekf-joint": {"color": "tab:blue", "linestyle": "-", "linewidth": 3.4, "marker": "o",
+                  "zorder": 2.1},
+    "ekf-invariant": {"color": "tab:green", "linestyle": (0, (5, 3)), "linewidth": 1.4,
+                      "marker": "^", "zorder": 2.7},
+    "smoother": {"color": "tab:red", "linestyle": "-.", "linewidth": 1.5, "marker": "D",
+                 "zorder": 2.4},
+    "smoother-isam2": {"color": "tab:purple", "linestyle": ":", "linewidth": 2.0, "marker": "v",
+                       "zorder": 2.5},
 }
-#: Mapping runs on the dead-reckoned trajectory: dashed, so dead reckoning shows beneath it.
-LINESTYLES = {"mapping": (0, (5, 4))}
-GT_STYLE = {"color": "black", "linestyle": "--", "linewidth": 1.5, "label": "ground truth"}
+#: One colour per estimator (the colours of :data:`STYLES`).
+COLOURS = {name: style["color"] for name, style in STYLES.items()}
+#: Kept for callers: the dashed estimators of :data:`STYLES`.
+LINESTYLES = {n: s["linestyle"] for n, s in STYLES.items() if s["linestyle"] != "-"}
+_FALLBACK_LINESTYLES = ("-", (0, (5, 3)), "-.", ":", (0, (1, 1)), (0, (8, 2, 1, 2)))
+_FALLBACK_MARKERS = ("P", "X", "*", "h", "<", ">", "p", "d")
+#: Markers every this fraction of the axes diagonal; estimator k starts at k * _MARK_OFFSET.
+_MARK_EVERY = 0.09
+_MARK_OFFSET = 0.013
+GT_STYLE = {"color": "black", "linestyle": "--", "linewidth": 1.2, "label": "ground truth"}
 DPI = 110
 
 
 def _colour(name: str, i: int) -> str:
     return COLOURS.get(name, f"C{i % 10}")
+
+
+def line_style(name: str, i: int = 0, n_points: int | None = None) -> dict:
+    """Keyword arguments of ``Axes.plot`` for estimator ``name`` (``i``: its index in the
+    figure, for names without a fixed style): colour, line style and width, drawing order and
+    markers every :data:`_MARK_EVERY` of the axes diagonal, at an offset of its own; with
+    ``n_points`` (noisy series, whose length on screen says little) about 14 markers by index."""
+    k = list(STYLES).index(name) if name in STYLES else len(STYLES) + i
+    style = dict(STYLES.get(name) or {
+        "color": f"C{i % 10}", "linestyle": _FALLBACK_LINESTYLES[i % len(_FALLBACK_LINESTYLES)],
+        "linewidth": 1.5, "marker": _FALLBACK_MARKERS[i % len(_FALLBACK_MARKERS)], "zorder": 2.3,
+    })
+    wide = style["linewidth"] > 2.5
+    if n_points:
+        step = max(n_points // 14, 1)
+        markevery = (k * step // 7 % step, step)
+    else:
+        markevery = ((k * _MARK_OFFSET) % _MARK_EVERY, _MARK_EVERY)
+    style.update(
+        markevery=markevery,
+        markersize=7.5 if wide else 6.0,
+        markerfacecolor="white" if wide else style["color"],
+        markeredgecolor=style["color"],
+        markeredgewidth=1.5,
+    )
+    return style
+
+
+def coincident(curves: Mapping[str, np.ndarray], rtol: float = 1e-3) -> dict[str, list[str]]:
+    """For each name, the other names whose curve (array of the same shape) is the same within
+    ``rtol`` of the curves' largest finite magnitude (NaN where the other is NaN): the curves
+    that draw on top of each other."""
+    out: dict[str, list[str]] = {name: [] for name in curves}
+    arrays = {n: np.asarray(c, dtype=float) for n, c in curves.items()}
+    names = list(arrays)
+    for a, na in enumerate(names):
+        for nb in names[a + 1:]:
+            x, y = arrays[na], arrays[nb]
+            if x.shape != y.shape or x.size == 0:
+                continue
+            both = np.isfinite(x) & np.isfinite(y)
+            if not np.array_equal(np.isfinite(x), np.isfinite(y)) or not np.any(both):
+                continue
+            scale = max(float(np.max(np.abs(x[both]))), float(np.max(np.abs(y[both]))), 1e-12)
+            if np.all(np.abs(x[both] - y[both]) <= rtol * scale):
+                out[na].append(nb)
+                out[nb].append(na)
+    return out
+
+
+def _label(name: str, same: Mapping[str, list[str]], extra: str = "") -> str:
+    parts = [extra] if extra else []
+    if same.get(name):
+        parts.append("same curve as " + ", ".join(same[name]))
+    return f"{name} ({'; '.join(parts)})" if parts else name
+
+
+def readable(x: float | None) -> str:
+    """A number for a legend: 3 significant digits, powers of ten as 2.0e10."""
+    if x is None or not np.isfinite(x):
+        return "n/a"
+    if x != 0 and not 1e-2 <= abs(x) < 1e4:
+        mantissa, exponent = f"{x:.1e}".split("e")
+        return f"{mantissa}e{int(exponent)}"
+    return f"{x:.3g}"
 
 
 def _save(fig: Figure, path: str | os.PathLike) -> Path:
@@ -47,6 +139,21 @@ def _save(fig: Figure, path: str | os.PathLike) -> Path:
     fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
     write_bytes(path, buf.getvalue())
     return Path(path)
+
+
+def _legend_outside(fig: Figure, axes, **kwargs):
+    """One legend for ``axes`` (unique labels), outside the data on the right."""
+    handles, labels = [], []
+    for ax in np.atleast_1d(axes).ravel():
+        for h, label in zip(*ax.get_legend_handles_labels()):
+            if label not in labels:
+                handles.append(h)
+                labels.append(label)
+    if handles:
+        kwargs.setdefault("loc", "outside right upper")
+        kwargs.setdefault("fontsize", 8)
+        return fig.legend(handles, labels, handlelength=4, **kwargs)
+    return None
 
 
 def _equal_xy(ax, xy: np.ndarray, margin: float = 0.05) -> None:
@@ -66,27 +173,31 @@ def plot_trajectories(
     path, estimates: Mapping[str, Estimate], gt_positions: np.ndarray | None = None, title: str = ""
 ) -> Path:
     """Top view (x-y) of every estimated trajectory, with ground truth when known."""
-    fig = Figure(figsize=(7.5, 7))
+    fig = Figure(figsize=(9, 7), layout="constrained")
     ax = fig.add_subplot()
     pts = []
     if gt_positions is not None:
         ax.plot(gt_positions[:, 0], gt_positions[:, 1], zorder=10, **GT_STYLE)
         pts.append(gt_positions[:, :2])
+    same = coincident({n: e.positions[:, :2] for n, e in estimates.items()})
     for i, (name, est) in enumerate(estimates.items()):
         p = est.positions
-        ax.plot(p[:, 0], p[:, 1], color=_colour(name, i), linewidth=1.2, label=name,
-                linestyle=LINESTYLES.get(name, "-"))
+        ax.plot(p[:, 0], p[:, 1], label=_label(name, same), **line_style(name, i))
         pts.append(p[:, :2])
     first = next(iter(estimates.values()), None)
     if first is not None:
-        ax.plot(*first.positions[0, :2], "k^", markersize=8, label="start", zorder=6)
+        ax.plot(*first.positions[0, :2], "k^", markersize=9, label="start", zorder=11)
     _equal_xy(ax, np.concatenate(pts) if pts else np.zeros((0, 2)))
     ax.set_xlabel("x (m, forward at start)")
     ax.set_ylabel("y (m, left at start)")
     ax.set_title(title or "Trajectories, top view")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    _legend_outside(fig, ax)
     return _save(fig, path)
+
+
+#: The map shows landmarks within this many metres of the trajectory's bounding box.
+MAP_MARGIN_M = 60.0
 
 
 def plot_map(
@@ -96,30 +207,43 @@ def plot_map(
     truth_landmarks: np.ndarray | None = None,
     title: str = "",
 ) -> Path:
-    """Top view of ``est``'s landmark map over its trajectory (and ground truth when known)."""
-    fig = Figure(figsize=(7.5, 7))
+    """Top view of ``est``'s landmark map over its trajectory (and ground truth when known).
+    Landmarks more than :data:`MAP_MARGIN_M` outside the trajectory's bounding box are left out
+    (the title says how many, and how many tracks have no finite landmark); the true landmarks
+    are drawn on top as hollow black circles, the estimates as small filled dots."""
+    fig = Figure(figsize=(9, 7.5), layout="constrained")
     ax = fig.add_subplot()
     traj = est.positions
-    lm = est.landmarks[est.has_landmark]
-    # Keep the view on the drive: landmarks within 60 m of the trajectory's bounding box.
-    lo, hi = traj[:, :2].min(axis=0) - 60, traj[:, :2].max(axis=0) + 60
+    has = est.has_landmark
+    lm = est.landmarks[has]
+    lo = traj[:, :2].min(axis=0) - MAP_MARGIN_M
+    hi = traj[:, :2].max(axis=0) + MAP_MARGIN_M
     near = np.all((lm[:, :2] >= lo) & (lm[:, :2] <= hi), axis=1) if lm.size else np.zeros(0, bool)
+    n_far, n_missing = int((~near).sum()), int((~has).sum())
+    left_out = []
+    if n_far:
+        left_out.append(f"{n_far} more than {MAP_MARGIN_M:g} m outside the trajectory's extent")
+    if n_missing:
+        left_out.append(f"{n_missing} tracks without a finite landmark")
+    note = (f"{int(near.sum())} of {len(lm)} estimated landmarks shown"
+            + ("; not shown: " + ", ".join(left_out) if left_out else "; none left out"))
+    ax.scatter(lm[near, 0], lm[near, 1], s=5, c="tab:blue", alpha=0.8, linewidths=0, zorder=2,
+               label=f"{est.estimator} landmarks ({int(near.sum())} shown)")
     if truth_landmarks is not None:
         tl = truth_landmarks[np.all(np.isfinite(truth_landmarks), axis=1)]
-        ax.scatter(tl[:, 0], tl[:, 1], s=3, c="0.7", marker="x", linewidths=0.5,
-                   label=f"true landmarks ({len(tl)})")
-    ax.scatter(lm[near, 0], lm[near, 1], s=2, c="tab:blue", alpha=0.6,
-               label=f"{est.estimator} landmarks ({int(near.sum())} of {len(lm)} shown)")
-    ax.plot(traj[:, 0], traj[:, 1], color="tab:red", linewidth=2.0, label=f"{est.estimator} trajectory",
-            zorder=5)
+        ax.scatter(tl[:, 0], tl[:, 1], s=22, facecolors="none", edgecolors="black",
+                   linewidths=0.7, zorder=3, label=f"true landmarks ({len(tl)})")
+    ax.plot(traj[:, 0], traj[:, 1], color="tab:red", linewidth=2.0,
+            label=f"{est.estimator} trajectory", zorder=5)
     if gt_positions is not None:
         ax.plot(gt_positions[:, 0], gt_positions[:, 1], zorder=6, **GT_STYLE)
     _equal_xy(ax, np.concatenate([traj[:, :2], lm[near, :2]]))
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.set_title(title or f"Landmark map ({est.estimator})")
+    ax.set_title("\n".join([title or f"Landmark map ({est.estimator})", *textwrap.wrap(note, 64)]),
+                 fontsize=10)
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8, markerscale=3)
+    _legend_outside(fig, ax, markerscale=2)
     return _save(fig, path)
 
 
@@ -137,57 +261,98 @@ def plot_error_over_distance(
     distance travelled along the ground truth."""
     frames = np.asarray(gt_frames, dtype=np.int64)
     dist = distance_travelled(gt_poses[:, :3, 3])
-    fig = Figure(figsize=(8, 4.5))
+    fig = Figure(figsize=(9.5, 4.8), layout="constrained")
     ax = fig.add_subplot()
-    for i, (name, est) in enumerate(estimates.items()):
+    curves = {}
+    for name, est in estimates.items():
         ok = frames < est.n_frames
-        err = np.linalg.norm(est.positions[frames[ok]] - gt_poses[ok, :3, 3], axis=1)
-        ax.plot(dist[ok], err, color=_colour(name, i), linewidth=1.2, label=name,
-                linestyle=LINESTYLES.get(name, "-"))
+        err = np.full(len(frames), np.nan)
+        err[ok] = np.linalg.norm(est.positions[frames[ok]] - gt_poses[ok, :3, 3], axis=1)
+        curves[name] = err
+    same = coincident(curves)
+    for i, (name, err) in enumerate(curves.items()):
+        ok = np.isfinite(err)
+        ax.plot(dist[ok], err[ok], label=_label(name, same), **line_style(name, i))
     ax.set_xlabel("distance travelled (m)")
     ax.set_ylabel("translation error (m)")
     ax.set_title(title or "Translation error over distance (no alignment)")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    _legend_outside(fig, ax)
     return _save(fig, path)
+
+
+#: vs_smoother: a ±3σ band whose 90th percentile is under this share of the axis half-range is
+#: not drawn (no visible width); one
+#: whose 90th percentile is more than _BAND_DWARFS times the largest deviation is clipped.
+_BAND_VISIBLE = 0.05
+_BAND_DWARFS = 3.0
 
 
 def plot_vs_smoother(path, ekfs: Mapping[str, Estimate], smoother: Estimate, title: str = "") -> Path:
     """Each EKF's world-frame position deviation from the smoother (x, y, z over time) with the
-    EKF's own ±3σ band (R Σ_ρρ R^T, the Estimate's position covariance in the world frame)."""
+    EKF's own ±3σ band (R Σ_ρρ R^T, the Estimate's position covariance in the world frame).
+
+    The y range follows the deviation and the band: a band with no visible width (under
+    :data:`_BAND_VISIBLE` of the axis) is not drawn, and a band that dwarfs the deviation
+    (:data:`_BAND_DWARFS`) is clipped to the deviation's range; a note in the panel says so."""
     from eval.consistency import position_deviation
 
     names = list(ekfs)
     ncol = max(len(names), 1)
-    fig = Figure(figsize=(4.2 * ncol, 7.5))
+    fig = Figure(figsize=(4.2 * ncol + 1.0, 7.8), layout="constrained")
     axes = fig.subplots(3, ncol, sharex=True, squeeze=False)
     t = smoother.timestamps - smoother.timestamps[0]
+    band_drawn = False
     for c, name in enumerate(names):
         dev, sigma = position_deviation(ekfs[name], smoother)
+        colour = _colour(name, c)
         for r, axis in enumerate("xyz"):
             ax = axes[r, c]
-            ax.fill_between(t, -3 * sigma[:, r], 3 * sigma[:, r], color=_colour(name, c),
-                            alpha=0.2, label="±3σ (EKF)")
-            ax.plot(t, dev[:, r], color=_colour(name, c), linewidth=1.0, label="EKF − smoother")
+            d, s3 = dev[:, r], 3 * sigma[:, r]
+            fd, fs = np.isfinite(d), np.isfinite(s3)
+            dev_lim = float(np.max(np.abs(d[fd]))) if np.any(fd) else 0.0
+            band = float(np.percentile(s3[fs], 90)) if np.any(fs) else 0.0
+            band_max = float(np.max(s3[fs])) if np.any(fs) else 0.0
+            note = ""
+            if band > _BAND_DWARFS * dev_lim and dev_lim > 0:
+                lim = dev_lim
+                note = f"±3σ clipped (up to {readable(band_max)} m)"
+            else:
+                lim = max(dev_lim, band)
+            lim = 1.15 * lim + 1e-3
+            if band >= _BAND_VISIBLE * lim:
+                ax.fill_between(t, -s3, s3, color=colour, alpha=0.2, linewidth=0, label="EKF ±3σ")
+                band_drawn = True
+            else:
+                note = f"±3σ mostly under {readable(band)} m: too narrow to draw"
+            ax.plot(t, d, color=colour, linewidth=1.0, label="EKF − smoother")
             ax.axhline(0, color="k", linewidth=0.5)
+            ax.set_ylim(-lim, lim)
             ax.grid(True, alpha=0.3)
+            if note:
+                ax.text(0.01, 0.02, note, transform=ax.transAxes, fontsize=7, va="bottom",
+                        bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.7"})
             if c == 0:
                 ax.set_ylabel(f"{axis} deviation (m)")
             if r == 0:
-                ax.set_title(name)
-                ax.legend(loc="upper left", fontsize=7)
+                ax.set_title(name, color=colour)
             if r == 2:
                 ax.set_xlabel("time (s)")
-            # Scale on the deviation and a moderate band, so neither hides the other.
-            finite = np.isfinite(dev[:, r])
-            if np.any(finite):
-                lim = max(np.max(np.abs(dev[finite, r])),
-                          np.nanpercentile(3 * sigma[:, r], 90) if np.any(np.isfinite(sigma[:, r])) else 0)
-                ax.set_ylim(-1.15 * lim - 1e-3, 1.15 * lim + 1e-3)
     if not names:
         axes[0, 0].text(0.5, 0.5, "no EKF estimate", ha="center", va="center")
+    handles = [Line2D([], [], color="0.3", linewidth=1.0, label="EKF − smoother (column colour)")]
+    if band_drawn:
+        handles.append(Patch(color="0.3", alpha=0.25, label="EKF ±3σ"))
+    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=8)
     fig.suptitle(title or f"EKF deviation from the smoother ({smoother.estimator})")
     return _save(fig, path)
+
+
+def nees_axis_range(dof: int, n_runs: int = 1) -> tuple[float, float]:
+    """The NEES axis of :func:`plot_nees`: whole decades around the 95 % band, from a fifth of
+    its lower end to twenty times its upper end ([0.1, 1000] for 6 dof)."""
+    lo, hi = chi2.ppf([0.025, 0.975], n_runs * dof) / n_runs
+    return 10.0 ** np.floor(np.log10(lo / 5)), 10.0 ** np.ceil(np.log10(hi * 20))
 
 
 def plot_nees(
@@ -200,23 +365,114 @@ def plot_nees(
     ylabel: str | None = None,
 ) -> Path:
     """NEES (or ANEES over ``n_runs``) over time per estimator with the two-sided 95 %
-    chi-square band ``chi2.ppf([0.025, 0.975], n_runs dof) / n_runs``; log scale."""
+    chi-square band ``chi2.ppf([0.025, 0.975], n_runs dof) / n_runs``; log scale.
+
+    The main panel's axis is fixed to :func:`nees_axis_range` so the band reads the same on
+    every drive; an estimator whose median NEES is outside that range is drawn apart, in a
+    lower panel on its own scale, and the main panel lists it with its mean. Legend entries say
+    each mean (2.0e10 style) and the share of steps clipped. The y label is the same for every
+    call; ``ylabel`` (e.g. what the NEES is measured against) becomes the legend's title."""
     lo, hi = chi2.ppf([0.025, 0.975], n_runs * dof) / n_runs
-    fig = Figure(figsize=(8, 4.5))
-    ax = fig.add_subplot()
+    ylo, yhi = nees_axis_range(dof, n_runs)
     n = max((len(v) for v in series.values()), default=0)
-    x = np.arange(n) if times is None else np.asarray(times)[:n]
-    ax.axhspan(lo, hi, color="0.85", label=f"95 % band [{lo:.2f}, {hi:.2f}]")
-    ax.axhline(dof, color="0.4", linewidth=0.8, linestyle=":", label=f"expected ({dof})")
-    for i, (name, values) in enumerate(series.items()):
-        v = np.asarray(values, dtype=float)
-        ok = np.isfinite(v) & (v > 0)
-        ax.plot(x[: len(v)][ok], v[ok], color=_colour(name, i), linewidth=1.0,
-                label=f"{name} (mean {np.mean(v[np.isfinite(v)]):.2f})" if np.any(ok) else name)
-    ax.set_yscale("log")
-    ax.set_xlabel("time (s)" if times is not None else "step")
-    ax.set_ylabel(ylabel or (f"pose NEES ({dof} dof)" if n_runs == 1 else f"ANEES over {n_runs} runs"))
-    ax.set_title(title or "Pose NEES over time")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    x = np.arange(n) if times is None else np.asarray(times, dtype=float)[:n]
+    values = {name: np.asarray(v, dtype=float) for name, v in series.items()}
+    wild = [name for name, v in values.items()
+            if np.any(np.isfinite(v)) and not ylo <= np.median(v[np.isfinite(v)]) <= yhi]
+    fig = Figure(figsize=(10, 6.8 if wild else 4.8), layout="constrained")
+    if wild:
+        main, apart = fig.subplots(2, 1, sharex=True, height_ratios=[2, 1])
+    else:
+        main, apart = fig.subplots(), None
+    same = coincident(values)
+    for ax in (main, apart):
+        if ax is None:
+            continue
+        ax.axhspan(lo, hi, color="0.85", zorder=0, label=f"95 % band [{lo:.2f}, {hi:.2f}]")
+        ax.axhline(dof, color="0.4", linewidth=0.8, linestyle=":", zorder=0.5,
+                   label=f"expected ({dof})")
+    for i, (name, v) in enumerate(values.items()):
+        finite = np.isfinite(v)
+        ok = finite & (v > 0)
+        ax = apart if name in wild else main
+        extra = ""
+        if np.any(finite):
+            extra = f"mean {readable(float(np.mean(v[finite])))}"
+            if name in wild:
+                extra += ", own panel below"
+            else:
+                off = float(np.mean((v[finite] > yhi) | (v[finite] < ylo)))
+                if off > 0:
+                    share = "<1" if off < 0.01 else f"{100 * off:.0f}"
+                    extra += f", {share} % of steps off scale"
+        ax.plot(x[: len(v)][ok], v[ok], label=_label(name, same, extra),
+                **line_style(name, i, n_points=int(ok.sum())))
+    what = f"pose NEES ({dof} dof)" if n_runs == 1 else f"pose ANEES over {n_runs} runs ({dof} dof)"
+    main.set_yscale("log")
+    main.set_ylim(ylo, yhi)
+    main.yaxis.set_major_formatter(_PlainLogFormatter())
+    main.set_ylabel(what)
+    main.set_title(title or ("Pose NEES over time" if n_runs == 1 else "Pose ANEES over time"))
+    if wild:
+        means = ", ".join(f"{w} (mean {readable(float(np.nanmean(values[w])))})" for w in wild)
+        main.text(0.01, 0.97, f"off this scale, drawn below: {means}", transform=main.transAxes,
+                  fontsize=8, va="top",
+                  bbox={"facecolor": "white", "alpha": 0.85, "edgecolor": "0.7"})
+        apart.set_yscale("log")
+        apart.set_ylabel(f"{what},\nown scale")
+        apart.set_title("off the scale above", fontsize=9)
+    for ax in (main, apart):
+        if ax is not None:
+            ax.grid(True, which="both", alpha=0.3)
+    (apart if apart is not None else main).set_xlabel("time (s)" if times is not None else "step")
+    _legend_outside(fig, [main, apart] if apart is not None else main, title=ylabel,
+                    title_fontsize=8)
+    return _save(fig, path)
+
+
+class _PlainLogFormatter(LogFormatter):
+    """Log-axis labels as plain numbers (0.6, 6, 60), on the ticks LogFormatter labels."""
+
+    def __call__(self, x, pos=None):
+        return f"{x:g}" if super().__call__(x, pos) else ""
+
+
+def plot_nees_depth_sweep(
+    path,
+    depths,
+    pose: Mapping[tuple[str, str | None], "np.ndarray | list"],
+    landmark: Mapping[tuple[str, str | None], "np.ndarray | list"],
+    n_runs: int,
+    title: str = "",
+) -> Path:
+    """Pose and landmark ANEES over ``n_runs`` runs (two panels, log scale) against the
+    simulated landmark range ``depths`` (m). One line per key (estimator, landmark
+    parameterisation or None): the estimator's colour, dashed for "inverse-depth"; the
+    two-sided 95 % chi-square band of ``n_runs`` runs shaded; None or NaN values left out."""
+    x = np.asarray(depths, dtype=float)
+    fig = Figure(figsize=(11, 4.6), layout="constrained")
+    axes = fig.subplots(1, 2, sharex=True)
+    names = list(dict.fromkeys(name for name, _ in pose))
+    for ax, series, dof, what in ((axes[0], pose, 6, "pose"), (axes[1], landmark, 3, "landmark")):
+        lo, hi = chi2.ppf([0.025, 0.975], n_runs * dof) / n_runs
+        ax.axhspan(lo, hi, color="0.85", label=f"95 % band, {n_runs} runs")
+        ax.axhline(dof, color="0.4", linewidth=0.8, linestyle=":", label="expected (= dof)")
+        for (name, param), values in series.items():
+            v = np.array([np.nan if a is None else a for a in values], dtype=float)
+            ok = np.isfinite(v) & (v > 0)
+            ax.plot(x[ok], v[ok], color=_colour(name, names.index(name)), marker="o",
+                    markersize=4, linewidth=1.6, linestyle="--" if param == "inverse-depth" else "-",
+                    label=name if param is None else f"{name}, {param}")
+        ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(_PlainLogFormatter())
+        ax.yaxis.set_minor_formatter(_PlainLogFormatter(labelOnlyBase=False, minor_thresholds=(1, 0.4)))
+        ax.set_xticks(x)
+        ax.set_xticklabels([f"{d:g}" for d in x])
+        ax.set_xlabel("maximum landmark depth of the simulated drive (m)")
+        ax.set_ylabel(f"{what} ANEES ({dof} dof)")
+        ax.set_title(f"{what.capitalize()} ANEES ({lo:.2f}-{hi:.2f} is consistent)")
+        ax.grid(True, which="both", alpha=0.3)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside right upper", fontsize=8, handlelength=4)
+    fig.suptitle(title or f"ANEES against landmark range, {n_runs} runs")
     return _save(fig, path)

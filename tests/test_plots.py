@@ -65,3 +65,112 @@ def test_figures_without_ground_truth_or_landmarks(tmp_path, ests):
 def test_distance_travelled():
     p = np.array([[0, 0, 0], [3, 4, 0], [3, 4, 2.0]])
     assert np.allclose(plots.distance_travelled(p), [0, 5, 7])
+
+
+@pytest.fixture
+def figures(monkeypatch):
+    """The Figure objects the plot functions save, in order (they are still written)."""
+    seen = []
+    save = plots._save
+
+    def capture(fig, path):
+        seen.append(fig)
+        return save(fig, path)
+
+    monkeypatch.setattr(plots, "_save", capture)
+    return seen
+
+
+def _legend_texts(fig):
+    return [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+
+
+def test_coinciding_estimators_stay_distinguishable(tmp_path, figures):
+    """Pairs that draw the same curve get other line styles, widths, markers and marker
+    offsets, and the legend says they coincide."""
+    for a, b in (("dead-reckoning", "mapping"), ("ekf-joint", "ekf-invariant")):
+        sa, sb = plots.line_style(a), plots.line_style(b)
+        for key in ("color", "linestyle", "marker", "markevery"):
+            assert sa[key] != sb[key], (a, b, key)
+        assert sa["linewidth"] > sb["linewidth"] and sa["zorder"] < sb["zorder"], (a, b)
+    unknown = [plots.line_style(f"x{i}", i) for i in range(3)]
+    assert len({(s["linestyle"], s["marker"]) for s in unknown}) == 3
+
+    same = _est("ekf-joint", noise=0.01, seed=2)
+    twin = _est("ekf-invariant", noise=0.01, seed=2)
+    other = _est("ekf-decoupled", noise=0.05, seed=3)
+    ests = {"ekf-joint": same, "ekf-invariant": twin, "ekf-decoupled": other}
+    assert plots.coincident({n: e.positions for n, e in ests.items()}) == {
+        "ekf-joint": ["ekf-invariant"], "ekf-invariant": ["ekf-joint"], "ekf-decoupled": []}
+    gt = _est("smoother").poses
+    plots.plot_trajectories(tmp_path / "t.png", ests, gt[:, :3, 3])
+    plots.plot_error_over_distance(tmp_path / "e.png", ests, np.arange(80), gt)
+    for fig in figures:
+        texts = _legend_texts(fig)
+        assert "ekf-joint (same curve as ekf-invariant)" in texts, texts
+        assert "ekf-decoupled" in texts
+        lines = {line.get_label(): line for line in fig.axes[0].get_lines()}
+        assert lines["ekf-joint (same curve as ekf-invariant)"].get_marker() != \
+            lines["ekf-invariant (same curve as ekf-joint)"].get_marker()
+
+
+def test_nees_puts_wild_estimators_apart_with_readable_means(tmp_path, figures):
+    rng = np.random.default_rng(1)
+    series = {"ekf-joint": rng.chisquare(6, 80), "ekf-invariant": rng.chisquare(6, 80),
+              "ekf-decoupled": np.full(80, 2.0461224441e10)}
+    _check_png(plots.plot_nees(tmp_path / "n.png", series, dof=6, times=np.arange(80) * 0.1,
+                               ylabel="pose NEES vs ground truth (6 dof)"))
+    fig = figures[-1]
+    main, apart = fig.axes
+    assert main.get_ylim() == pytest.approx((0.1, 1000.0))
+    assert main.get_ylabel() == "pose NEES (6 dof)"
+    assert [line.get_label() for line in apart.get_lines()][-1].startswith("ekf-decoupled")
+    texts = _legend_texts(fig)
+    assert "ekf-decoupled (mean 2.0e10, own panel below)" in texts, texts
+    assert not any("20461224441" in t for t in texts)
+    assert fig.legends[0].get_title().get_text() == "pose NEES vs ground truth (6 dof)"
+    assert any("ekf-decoupled (mean 2.0e10)" in t.get_text() for t in main.texts)
+    # Nothing wild: one panel, on the same axis.
+    plots.plot_nees(tmp_path / "m.png", {"ekf-joint": series["ekf-joint"]}, dof=6)
+    assert len(figures[-1].axes) == 1 and figures[-1].axes[0].get_ylim() == pytest.approx((0.1, 1000))
+
+
+def test_readable_numbers():
+    assert plots.readable(20461224441.08) == "2.0e10"
+    assert plots.readable(5.1234) == "5.12"
+    assert plots.readable(0.001) == "1.0e-3"
+    assert plots.readable(None) == "n/a" and plots.readable(float("nan")) == "n/a"
+
+
+def test_vs_smoother_drops_invisible_bands_and_clips_huge_ones(tmp_path, figures):
+    smoother = _est("smoother")
+    narrow = _est("ekf-decoupled", noise=0.05, seed=4)
+    narrow.pose_cov = np.tile(np.eye(6) * 1e-12, (80, 1, 1))
+    wide = _est("ekf-joint", noise=0.01, seed=5)
+    wide.pose_cov = np.tile(np.eye(6) * 1e4, (80, 1, 1))
+    plots.plot_vs_smoother(tmp_path / "v.png", {"ekf-decoupled": narrow, "ekf-joint": wide}, smoother)
+    fig = figures[-1]
+    axes = np.array(fig.axes).reshape(3, 2)
+    for ax in axes[:, 0]:
+        assert not ax.collections, "a band with no visible width is drawn"
+        assert any("too narrow to draw" in t.get_text() for t in ax.texts)
+    dev = np.abs(wide.positions - smoother.positions).max(axis=0)
+    for r, ax in enumerate(axes[:, 1]):
+        assert ax.collections, "the band is drawn"
+        assert ax.get_ylim()[1] < 2 * dev[r] + 0.01, "the y range follows the deviation"
+        assert any("±3σ clipped (up to 300 m)" in t.get_text() for t in ax.texts)
+
+
+def test_map_says_what_it_leaves_out(tmp_path, figures):
+    est = _est("ekf-joint")
+    est.landmarks[3] = [5000.0, 0.0, 0.0]  # far off the drive
+    truth = est.landmarks + 0.1
+    plots.plot_map(tmp_path / "m.png", est, truth_landmarks=truth)
+    ax = figures[-1].axes[0]
+    title = ax.get_title().replace("\n", " ")
+    assert "26 of 27 estimated landmarks shown" in title, title
+    assert "1 more than 60 m outside the trajectory's extent" in title
+    assert "3 tracks without a finite landmark" in title
+    estimates, truths = ax.collections
+    assert truths.get_zorder() > estimates.get_zorder(), "truth drawn on top"
+    assert len(truths.get_facecolors()) == 0 or truths.get_facecolors()[0][3] == 0, "hollow"
