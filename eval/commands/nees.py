@@ -14,11 +14,15 @@ NEES_DEFAULT = ("ekf-joint", "ekf-invariant", "smoother")
 MAX_RUNS = 2000
 #: What ``vislam nees`` writes into its folder.
 NEES_FILES = ("nees.json", "nees.png")
+#: Longest landmark range of the simulated drive (m): the simulator places no landmark further
+#: than 80 m ahead of the drive's end or 50 m to the side, and a 0.5 px disparity is 760 m deep.
+MAX_SIM_DEPTH = 1000.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from eval.benchmark import DEFAULT_NEES_FRAMES
     from eval.runjob import add_filter_arguments
+    from eval.simulate import DEFAULT_SIM
 
     parser.add_argument("--runs", "-n", type=int, required=True, metavar="N", help="Monte Carlo runs")
     parser.add_argument("--seed", type=int, default=0, help="seed of the drive (and of the noise)")
@@ -28,6 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="worker processes (default: number of CPUs)")
     parser.add_argument("--frames", type=int, default=None, metavar="N",
                         help=f"length of the simulated drive (default {DEFAULT_NEES_FRAMES})")
+    parser.add_argument("--sim-max-depth", type=float, default=None, metavar="M",
+                        help=f"simulated landmarks up to M m deep (default {DEFAULT_SIM.max_depth:g})")
     parser.add_argument("--out", "-o", metavar="DIR",
                         help="output folder (default results/nees-<YYYYmmdd-HHMMSS>)")
     parser.add_argument("--force", action="store_true",
@@ -49,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from eval.benchmark import monte_carlo_nees
     from eval.registry import estimators_from_flag
     from eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
+    from eval.simulate import DEFAULT_SIM
 
     estimators = estimators_from_flag(args.estimators, NEES_DEFAULT)
     config = filter_config_from_args(args)
@@ -58,16 +65,22 @@ def run(args: argparse.Namespace) -> int:
                          "drive is built up front, about 1 MB each)")
     if args.frames is not None and args.frames < 2:
         raise InputError(f"--frames must be >= 2, got {args.frames}")
+    depth = args.sim_max_depth
+    if depth is not None and not DEFAULT_SIM.min_depth < depth <= MAX_SIM_DEPTH:
+        raise InputError(f"--sim-max-depth must be above the simulator's min_depth "
+                         f"{DEFAULT_SIM.min_depth:g} m and at most {MAX_SIM_DEPTH:g} m, got {depth:g}")
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 1:
         raise InputError(f"--jobs must be >= 1, got {jobs}")
+    landmarks = "" if depth is None else f", landmarks up to {depth:g} m"
     out = Path(args.out) if args.out else Path("results") / time.strftime("nees-%Y%m%d-%H%M%S")
 
     t0 = time.perf_counter()
     with OutputDir(out, force=args.force, expected=NEES_FILES, inputs=[args.config]) as tmp:
         result = monte_carlo_nees(args.runs, args.seed, estimators, config, frames=args.frames,
                                   jobs=min(jobs, args.runs * len(estimators)),
-                                  show_progress=not args.quiet, smoother=smoother)
+                                  show_progress=not args.quiet, smoother=smoother,
+                                  sim_max_depth=depth)
         result["settings"] = environment_settings()
         with deferred():  # a signal waits until the files are written
             write_json(tmp / "nees.json", result)
@@ -75,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
             plots.plot_nees(tmp / "nees.png", series, dof=6, n_runs=args.runs,
                             times=result["timestamps"],
                             title=f"Pose ANEES over {args.runs} Monte Carlo runs "
-                                  f"({result['frames']} frames, seed {args.seed})")
+                                  f"({result['frames']} frames, seed {args.seed}{landmarks})")
     if not args.quiet:
         print(_table(result))
     print(f"wrote {out} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
