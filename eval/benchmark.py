@@ -28,6 +28,7 @@ import concurrent.futures as cf
 import contextlib
 import dataclasses
 import logging
+import math
 import signal
 import time
 from dataclasses import dataclass, field
@@ -478,15 +479,39 @@ def sequence_figures(folder: Path, bs: BenchSequence, ests: dict[str, Estimate])
 
 
 def _fmt(x, digits=2) -> str:
+    """A table cell: "–" for no value; floats fixed-point, or as 2.0e10 / 3.5e-05 when that
+    would print a long number (at least 1e5) or only zeros (below 10^-digits)."""
     if x is None:
         return "–"
     if isinstance(x, float):
+        if x != 0 and math.isfinite(x) and not 10.0**-digits <= abs(x) < 1e5:
+            mantissa, exponent = f"{x:.1e}".split("e")
+            return f"{mantissa}e{int(exponent)}"
         return f"{x:.{digits}f}"
     return str(x)
 
 
+#: The columns of a drive's table in summary.md: (header, key in the row or in its
+#: "vs_smoother" part, digits). A column with no value on any row of the drive is left out.
+SUMMARY_COLUMNS = (
+    ("time (s)", "runtime_s", 2), ("frames/s", "frames_per_s", 1), ("ATE (m)", "ate_m", 2),
+    ("ATE al. (m)", "ate_aligned_m", 2), ("t_rel (%)", "rpe_trans_pct", 2),
+    ("r_rel (°/100m)", "rpe_rot_deg_per_100m", 2), ("NEES", "nees_pose_mean", 2),
+    ("map RMSE (m)", "map_rmse_m", 2), ("lm NEES", "nees_landmark_mean", 2),
+    ("vs sm. ATE al. (m)", "vs_smoother.ate_aligned_m", 2), ("vs sm. map (m)", "vs_smoother.map_rmse_m", 2),
+    ("vs sm. NEES", "vs_smoother.nees_pose_mean", 2), ("vs sm. in 95%", "vs_smoother.inside_95_fraction", 2),
+)
+
+
+def _cell(row: dict, key: str):
+    if key.startswith("vs_smoother."):
+        return (row.get("vs_smoother") or {}).get(key.split(".", 1)[1])
+    return row.get(key)
+
+
 def summary_markdown(results: dict) -> str:
-    """The results as Markdown tables, one per sequence."""
+    """The results as Markdown: per sequence the model line, readings in words
+    (:func:`readings`), and a table of the columns that have a value on some row."""
     lines = ["# vislam benchmark", ""]
     lines.append(f"RPE: {results['rpe_definition']}.")
     lines.append("vs smoother: the estimator against the smoother's estimate on the same data "
@@ -494,10 +519,6 @@ def summary_markdown(results: dict) -> str:
                  "the difference under the estimator's own covariance, and the share of steps "
                  "inside chi2.ppf(0.95, 6)).")
     lines.append("")
-    head = ("| estimator | time (s) | frames/s | ATE (m) | ATE al. (m) | t_rel (%) | r_rel (°/100m) "
-            "| NEES | map RMSE (m) | lm NEES | vs sm. ATE al. (m) | vs sm. map (m) | vs sm. NEES "
-            "| vs sm. in 95% |")
-    sep = "|" + "|".join(["---"] * 14) + "|"
     for s in results["sequences"]:
         gt = "ground truth" if s["has_ground_truth"] else "no ground truth"
         lines.append(f"## {s['name']} ({s['frames']} frames, {gt})")
@@ -505,24 +526,75 @@ def summary_markdown(results: dict) -> str:
         model_line = _model_line(s.get("model"))
         if model_line:
             lines += [model_line, ""]
-        lines.append(head)
-        lines.append(sep)
+        said = readings(s)
+        if said:
+            lines += [f"- {sentence}" for sentence in said] + [""]
+        ok = [r for r in s["estimators"] if not r["error"]]
+        columns = [c for c in SUMMARY_COLUMNS if any(_cell(r, c[1]) is not None for r in ok)]
+        lines.append("| estimator | " + " | ".join(c[0] for c in columns) + " |")
+        lines.append("|" + "|".join(["---"] * (1 + len(columns))) + "|")
         for r in s["estimators"]:
             if r["error"]:
-                lines.append(f"| {r['name']} | failed: {r['error']} |" + " |" * 12)
+                lines.append(f"| {r['name']} | failed: {r['error']} |" + " |" * max(len(columns) - 1, 0))
                 continue
-            v = r["vs_smoother"]
-            cells = [
-                r["name"], _fmt(r["runtime_s"]), _fmt(r["frames_per_s"], 1), _fmt(r["ate_m"]),
-                _fmt(r["ate_aligned_m"]), _fmt(r["rpe_trans_pct"]), _fmt(r["rpe_rot_deg_per_100m"]),
-                _fmt(r["nees_pose_mean"]), _fmt(r["map_rmse_m"]), _fmt(r["nees_landmark_mean"]),
-                _fmt(v["ate_aligned_m"]), _fmt(v["map_rmse_m"]), _fmt(v["nees_pose_mean"]),
-                _fmt(v["inside_95_fraction"]),
-            ]
+            cells = [r["name"]] + [_fmt(_cell(r, key), digits) for _, key, digits in columns]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
-        lines += _reference_honesty(s)
     return "\n".join(lines)
+
+
+def _names(rows: list[tuple[str, float]]) -> str:
+    return ", ".join(f"{name} ({_fmt(value, 1)})" for name, value in rows)
+
+
+def readings(s: dict) -> list[str]:
+    """A drive's results in a few sentences: the most accurate estimator, which are consistent
+    and which over- or underconfident against ground truth (mean pose NEES against the band of
+    one 6-dof NEES, :data:`eval.consistency.POSE_NEES_BAND`) and against the smoother, and the
+    warning when the reference itself is not consistent (:func:`_reference_honesty`)."""
+    from eval.consistency import POSE_NEES_BAND
+
+    ok = [r for r in s["estimators"] if not r["error"]]
+    out = []
+    failed = [r["name"] for r in s["estimators"] if r["error"]]
+    if failed:
+        out.append(f"Failed: {', '.join(failed)} (see results.json).")
+    scored = [r for r in ok if r.get("ate_aligned_m") is not None]
+    if scored:
+        best = min(scored, key=lambda r: r["ate_aligned_m"])
+        drift = "" if best.get("rpe_trans_pct") is None else f", t_rel {_fmt(best['rpe_trans_pct'])} %"
+        sentence = f"Most accurate: {best['name']} (aligned ATE {_fmt(best['ate_aligned_m'])} m{drift})"
+        ekfs = [r for r in scored if r["name"].startswith("ekf-")]
+        if ekfs and not best["name"].startswith("ekf-"):
+            e = min(ekfs, key=lambda r: r["ate_aligned_m"])
+            sentence += f"; the best EKF is {e['name']} ({_fmt(e['ate_aligned_m'])} m)"
+        out.append(sentence + ".")
+    else:
+        near = [r for r in ok if _cell(r, "vs_smoother.ate_aligned_m") is not None]
+        if near:
+            e = min(near, key=lambda r: _cell(r, "vs_smoother.ate_aligned_m"))
+            out.append(f"No ground truth: the estimator closest to the smoother is {e['name']} "
+                       f"(aligned ATE against it {_fmt(_cell(e, 'vs_smoother.ate_aligned_m'))} m).")
+    lo, hi = POSE_NEES_BAND
+    for what, key in (("against ground truth", "nees_pose_mean"),
+                      ("against the smoother", "vs_smoother.nees_pose_mean")):
+        rows = [(r["name"], _cell(r, key)) for r in ok if _cell(r, key) is not None]
+        if not rows:
+            continue
+        inside = [x for x in rows if lo <= x[1] <= hi]
+        above = [x for x in rows if x[1] > hi]
+        below = [x for x in rows if x[1] < lo]
+        parts = []
+        if inside:
+            parts.append(f"consistent: {_names(inside)}")
+        if above:
+            parts.append(f"overconfident: {_names(above)}")
+        if below:
+            parts.append(f"underconfident: {_names(below)}")
+        out.append(f"Pose NEES {what} (band [{lo:.2f}, {hi:.2f}] for the mean of one drive): "
+                   + "; ".join(parts) + ".")
+    out += [x for x in _reference_honesty(s) if x]
+    return out
 
 
 def _reference_honesty(s: dict) -> list[str]:

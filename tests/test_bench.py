@@ -267,3 +267,31 @@ def test_summary_says_which_model_and_when_the_reference_is_not_a_fair_yardstick
     assert "overconfident" not in summary(6.1, identified)
     assert "underconfident" in summary(0.5, identified)
     assert "Model: the file's extrinsic and the settings as given." in summary(6.0, {"mode": "as-given"})
+
+
+def test_summary_reads_the_results_in_words_and_drops_empty_columns():
+    row = {k: None for k in benchmark.ESTIMATOR_KEYS}
+    vs = {k: None for k in benchmark.VS_SMOOTHER_KEYS}
+
+    def est(name, ate, nees, vs_nees=None, error=None):
+        return {**row, "name": name, "error": error, "runtime_s": 1.0, "ate_aligned_m": ate,
+                "nees_pose_mean": nees, "vs_smoother": {**vs, "nees_pose_mean": vs_nees}}
+
+    seq = {"name": "d", "frames": 10, "has_ground_truth": True, "reference_smoother": "smoother",
+           "estimators": [est("dead-reckoning", 3.5, 7.3), est("ekf-decoupled", 13.0, 2.04e10, 6.7e14),
+                          est("ekf-joint", 5.2, 17.8, 6.6), est("smoother", 2.6, 146.0),
+                          est("ekf-invariant", None, None, error="boom")]}
+    text = benchmark.summary_markdown({"rpe_definition": "x", "sequences": [seq]})
+    said = benchmark.readings(seq)
+    assert said[0] == "Failed: ekf-invariant (see results.json)."
+    assert said[1] == "Most accurate: smoother (aligned ATE 2.60 m); the best EKF is ekf-joint (5.20 m)."
+    assert ("consistent: dead-reckoning (7.3); overconfident: ekf-decoupled (2.0e10), "
+            "ekf-joint (17.8), smoother (146.0).") in said[2]
+    assert said[3].startswith("Pose NEES against the smoother") and "consistent: ekf-joint (6.6)" in said[3]
+    assert said[4].startswith("The smoother is overconfident on this drive")
+    assert all(f"- {x}" in text for x in said)
+    header = next(line for line in text.splitlines() if line.startswith("| estimator"))
+    assert header == "| estimator | time (s) | ATE al. (m) | NEES | vs sm. NEES |"
+    assert "| ekf-decoupled | 1.00 | 13.00 | 2.0e10 | 6.7e14 |" in text
+    assert "20400000000" not in text
+    assert benchmark._fmt(0.0054) == "5.4e-3" and benchmark._fmt(0.0) == "0.00" and benchmark._fmt(123.456) == "123.46"
