@@ -714,6 +714,7 @@ def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smo
         folder = tmp / bs.name
         for name, est in ests.items():
             write_tum(folder / f"{name}.tum", est.timestamps, est.poses)
+            _save_estimate(folder / f"{name}.estimate.npz", est)
         sequence_figures(folder, bs, ests)
     results["wall_s"] = time.perf_counter() - t0
     summary = summary_markdown(results)
@@ -731,6 +732,16 @@ def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smo
         **(settings or {}),
     })
     return results, summary
+
+
+def _save_estimate(path: Path, est: Estimate) -> None:
+    """The whole estimate (poses, covariances, map) for the notebook, which then loads it
+    instead of running the estimator again; one that cannot be saved (not finite) is left out
+    with a warning: the notebook re-runs that one."""
+    try:
+        est.save_npz(path)
+    except EstimationError as exc:
+        log.warning("%s not written: %s", path.name, exc)
 
 
 # --- Monte Carlo NEES ------------------------------------------------------------------------
