@@ -14,6 +14,12 @@ from eval.registry import ESTIMATOR_NAMES, get_estimator
 
 OUTPUTS = ("trajectory.tum", "trajectory.kitti", "map.npz", "estimate.npz", "metrics.json",
            "settings.json")
+#: The benchmark's per-drive plots of one estimator on a drive with ground truth (map.png only
+#: for an estimator that maps landmarks; vs_smoother.png needs an EKF and a smoother together).
+PLOTS = ("trajectories.png", "map.png", "error_over_distance.png", "nees.png")
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
 @pytest.fixture(scope="module")
 def sim_file(tmp_path_factory):
     from eval.simulate import SimConfig, simulate, write_simulation
@@ -41,14 +47,17 @@ def test_registry_names_and_unknown_name():
 def test_run_writes_every_file(name, sim_file, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["run", str(sim_file), "--estimator", name, "--out", str(out), "--quiet"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == sorted([*OUTPUTS, MARKER])
+    est = Estimate.load_npz(out / "estimate.npz")
+    plots = [p for p in PLOTS if p != "map.png" or np.any(est.has_landmark)]
+    assert sorted(p.name for p in out.iterdir()) == sorted([*OUTPUTS, *plots, MARKER])
+    for png in plots:
+        assert (out / png).read_bytes()[:8] == PNG_SIGNATURE, png
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["estimator"] == name and metrics["frames"] == 60
     assert metrics["has_ground_truth"] and metrics["ate_m"] is not None
     assert metrics["ate_aligned_m"] is not None and "rpe_trans_pct" in metrics
     assert len((out / "trajectory.tum").read_text().splitlines()) == 60
     assert len((out / "trajectory.kitti").read_text().splitlines()) == 60
-    est = Estimate.load_npz(out / "estimate.npz")
     assert est.n_frames == 60
     with np.load(out / "map.npz") as m:
         assert m["landmarks"].shape == (est.landmarks.shape[0], 3)
@@ -58,6 +67,57 @@ def test_run_writes_every_file(name, sim_file, tmp_path, capsys):
     assert settings["estimator"] == name and settings["filter"]["pixel_sigma"] == 1.0
     assert name in capsys.readouterr().out
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_run_plots_are_recorded_in_the_marker_and_skipped_with_no_plots(sim_file, tmp_path):
+    out = tmp_path / "out"
+    assert main(["run", str(sim_file), "-e", "ekf-invariant", "--out", str(out), "-q"]) == 0
+    recorded = json.loads((out / MARKER).read_text())["files"]
+    assert sorted(recorded) == sorted([*OUTPUTS, *PLOTS])  # every plot is vislam's file
+    bare = tmp_path / "bare"
+    assert main(["run", str(sim_file), "-e", "ekf-invariant", "--out", str(bare), "-q",
+                 "--no-plots"]) == 0
+    assert sorted(p.name for p in bare.iterdir()) == sorted([*OUTPUTS, MARKER])
+    assert sorted(json.loads((bare / MARKER).read_text())["files"]) == sorted(OUTPUTS)
+
+
+def test_run_without_ground_truth_plots_trajectory_and_map_only(sim_file, tmp_path):
+    import shutil
+
+    alone = tmp_path / "data"
+    alone.mkdir()
+    data = shutil.copy(sim_file, alone / sim_file.name)  # no groundtruth/ folder beside it
+    out = tmp_path / "out"
+    assert main(["run", str(data), "-e", "ekf-joint", "--out", str(out), "-q"]) == 0
+    assert not json.loads((out / "metrics.json").read_text())["has_ground_truth"]
+    assert sorted(p.name for p in out.glob("*.png")) == ["map.png", "trajectories.png"]
+
+
+@pytest.mark.parametrize("exc", [RuntimeError("no font"), KeyboardInterrupt()])
+def test_a_failing_plot_writes_nothing_and_keeps_the_previous_results(exc, sim_file, tmp_path,
+                                                                     monkeypatch):
+    import eval.plots as plots
+
+    out = tmp_path / "out"
+    assert main(["run", str(sim_file), "-e", "dead-reckoning", "--out", str(out), "-q"]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def fail(*args, **kwargs):
+        raise exc
+
+    monkeypatch.setattr(plots, "plot_nees", fail)  # the last plot, after the others are drawn
+    argv = ["run", str(sim_file), "-e", "dead-reckoning", "--out", str(out), "-q",
+            "--pixel-sigma", "2"]
+    if isinstance(exc, KeyboardInterrupt):
+        assert main(argv) == 130
+    else:  # as in `vislam bench`: the error goes up (loud), saying nothing was written
+        with pytest.raises(RuntimeError, match="no font") as info:
+            main(argv)
+        assert any("--no-plots" in note for note in info.value.__notes__)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]  # no staging folder left
+    assert main([*argv, "--no-plots"]) == 0  # the way out the message names
+    assert json.loads((out / "settings.json").read_text())["filter"]["pixel_sigma"] == 2.0
 
 
 def test_run_flags_override_the_settings_file(sim_file, tmp_path):

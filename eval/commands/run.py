@@ -1,8 +1,12 @@
-"""`vislam run`: one estimator on one sequence; trajectory, map, estimate, scores into a folder.
+"""`vislam run`: one estimator on one sequence; trajectory, map, estimate, scores and the
+benchmark's per-drive plots into a folder.
 
 The output folder follows :mod:`eval.output_dir`: checked before the estimation starts, built
 in a hidden staging folder and moved in only when every file is written; an error or an
 interruption leaves nothing half-written, and no file vislam did not write is ever replaced.
+The plots are drawn as ``vislam bench`` draws them (:func:`eval.benchmark.sequence_figures`,
+matplotlib's Agg canvas) into the same staging folder; as in the benchmark, a plot that fails
+fails the command and nothing is written (the message says so, and ``--no-plots`` skips them).
 """
 
 from __future__ import annotations
@@ -17,6 +21,13 @@ from eval.registry import ESTIMATOR_NAMES
 #: What ``vislam run`` writes into ``--out`` (eval.runjob.write_run_outputs).
 RUN_FILES = ("trajectory.tum", "trajectory.kitti", "map.npz", "estimate.npz", "metrics.json",
              "settings.json")
+#: The plots ``vislam run`` can write besides (those of one estimator among the benchmark's
+#: per-drive plots, eval.benchmark.sequence_figures): the top-view trajectory and the map
+#: (when the estimator maps landmarks) always; with ground truth, the error over distance and
+#: the pose NEES over time. vs_smoother.png needs an EKF and a smoother on the same drive, so a
+#: single estimator never draws it.
+RUN_PLOTS = ("trajectories.png", "map.png")
+RUN_PLOTS_WITH_TRUTH = ("error_over_distance.png", "nees.png")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "never replaced)")
     parser.add_argument("--gt", metavar="FILE", help="ground-truth file (default: found next to FILE)")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    parser.add_argument("--no-plots", dest="plots", action="store_false",
+                        help="write no plots (by default: trajectories.png, map.png and, with "
+                             "ground truth, error_over_distance.png and nees.png)")
     from eval.runjob import add_filter_arguments
 
     add_filter_arguments(parser)
@@ -58,15 +72,54 @@ def run(args: argparse.Namespace) -> int:
         seq = model_sequence(seq, model)
     gt = find_ground_truth(args.file, override=args.gt,
                            cam_T_imu=None if model is None else model.cam_T_imu)
+    plots = getattr(args, "plots", True)
+    landmark_truth = _landmark_truth(args.file, seq) if plots else None
     inputs = [args.file, args.config, getattr(gt, "source", None) or args.gt]
-    out = OutputDir(args.out, force=args.force, inputs=inputs, expected=RUN_FILES)
+    expected = [*RUN_FILES, *(_plot_files(gt) if plots else ())]
+    out = OutputDir(args.out, force=args.force, inputs=inputs, expected=expected)
     with out as tmp:
-        metrics = _estimate_and_write(args, seq, gt, config, smoother, model, tmp)
+        metrics = _estimate_and_write(args, seq, gt, config, smoother, model, tmp,
+                                      plots=plots, landmark_truth=landmark_truth)
     print(_summary_line(metrics, args.out))
     return 0
 
 
-def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path) -> dict:
+def _plot_files(gt) -> tuple[str, ...]:
+    """The plots a run may write (checked for clashes before the estimation starts)."""
+    return (*RUN_PLOTS, *(RUN_PLOTS_WITH_TRUTH if gt is not None else ()))
+
+
+def _landmark_truth(path, seq) -> np.ndarray | None:
+    """A simulated drive's true landmarks (``<stem>_landmarks.npz`` beside it), drawn on the
+    map as the benchmark draws them (eval.benchmark.load_bench_sequence); None elsewhere."""
+    from eval.loader import read_npz
+
+    lm_file = Path(path).with_name(f"{Path(path).stem}_landmarks.npz")
+    if not lm_file.is_file():
+        return None
+    d = read_npz(lm_file, ("landmarks",))
+    if "landmarks" in d and d["landmarks"].shape == (seq.n_tracks, 3):
+        return np.asarray(d["landmarks"], dtype=float)
+    return None
+
+
+def _write_plots(tmp: Path, args, seq, gt, est, landmark_truth) -> list[Path]:
+    """The benchmark's per-drive plots of this one estimator into ``tmp``. A failure is the
+    command's (as in ``vislam bench``): the error goes up with a note, and nothing is written."""
+    from eval.benchmark import BenchSequence, sequence_figures
+
+    bs = BenchSequence(name=seq.name, path=str(Path(args.file).resolve()), sequence=seq, gt=gt,
+                       landmark_truth=landmark_truth)
+    try:
+        return sequence_figures(tmp, bs, {args.estimator: est})
+    except Exception as exc:
+        exc.add_note("vislam run: drawing the plots failed, so nothing was written; "
+                     "--no-plots writes the results without them")
+        raise
+
+
+def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path, *, plots: bool = True,
+                        landmark_truth: np.ndarray | None = None) -> dict:
     from eval.runjob import (
         RPE_DEFINITION,
         Progress,
@@ -102,8 +155,10 @@ def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path) -> di
         **({"smoother": smoother.to_dict()} if args.estimator.startswith("smoother") else {}),
         **environment_settings(),
     }
-    with deferred():  # a signal waits until the files are written
+    with deferred():  # a signal waits until the files are written (matplotlib's C code too)
         write_run_outputs(tmp, seq, est, metrics, settings)
+        if plots:
+            _write_plots(tmp, args, seq, gt, est, landmark_truth)
     return metrics
 
 
