@@ -529,18 +529,26 @@ def summary_markdown(results: dict) -> str:
         said = readings(s)
         if said:
             lines += [f"- {sentence}" for sentence in said] + [""]
-        ok = [r for r in s["estimators"] if not r["error"]]
-        columns = [c for c in SUMMARY_COLUMNS if any(_cell(r, c[1]) is not None for r in ok)]
-        lines.append("| estimator | " + " | ".join(c[0] for c in columns) + " |")
-        lines.append("|" + "|".join(["---"] * (1 + len(columns))) + "|")
-        for r in s["estimators"]:
-            if r["error"]:
-                lines.append(f"| {r['name']} | failed: {r['error']} |" + " |" * max(len(columns) - 1, 0))
-                continue
-            cells = [r["name"]] + [_fmt(_cell(r, key), digits) for _, key, digits in columns]
-            lines.append("| " + " | ".join(cells) + " |")
+        header, rows = sequence_table(s)
+        lines.append("| " + " | ".join(header) + " |")
+        lines.append("|" + "|".join(["---"] * len(header)) + "|")
+        lines += ["| " + " | ".join(cells).rstrip() + " |" for cells in rows]
         lines.append("")
     return "\n".join(lines)
+
+
+def sequence_table(s: dict) -> tuple[list[str], list[list[str]]]:
+    """A drive's table as text cells: the header and one row per estimator, with the columns
+    of :data:`SUMMARY_COLUMNS` that have a value on some row (a failed estimator: its error)."""
+    ok = [r for r in s["estimators"] if not r["error"]]
+    columns = [c for c in SUMMARY_COLUMNS if any(_cell(r, c[1]) is not None for r in ok)]
+    rows = []
+    for r in s["estimators"]:
+        if r["error"]:
+            rows.append([r["name"], f"failed: {r['error']}"] + [""] * max(len(columns) - 1, 0))
+        else:
+            rows.append([r["name"]] + [_fmt(_cell(r, key), digits) for _, key, digits in columns])
+    return ["estimator"] + [c[0] for c in columns], rows
 
 
 def _names(rows: list[tuple[str, float]]) -> str:
@@ -646,7 +654,7 @@ class BenchOutput:
 
 
 #: What ``vislam bench`` writes at the top of its folder (a folder per sequence besides).
-BENCH_FILES = ("results.json", "summary.md", "settings.json")
+BENCH_FILES = ("results.json", "summary.md", "report.html", "settings.json")
 
 
 def default_out_dir(root: Path = Path("results")) -> Path:
@@ -698,6 +706,7 @@ def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smo
                    t0: float) -> tuple[dict, str]:
     from eval.atomic import write_json, write_text
     from eval.export import write_tum
+    from eval.report import report_html
 
     results = {
         "schema": SCHEMA,
@@ -720,6 +729,7 @@ def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smo
     summary = summary_markdown(results)
     write_json(tmp / "results.json", results)
     write_text(tmp / "summary.md", summary)
+    write_text(tmp / "report.html", report_html(results, tmp))
     write_json(tmp / "settings.json", {
         "estimators": list(estimators),
         "jobs": jobs,
