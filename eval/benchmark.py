@@ -145,8 +145,19 @@ def expand_paths(paths: list[str]) -> list[Path]:
         elif p.is_file():
             files.append(p)
         else:
-            raise InputError(f"{p}: no such file or folder")
+            raise InputError(f"{p}: no such file or folder ({_where_the_drives_are()})")
     return files
+
+
+def _where_the_drives_are() -> str:
+    """Where vislam looks for the shared KITTI drives, for a path that does not exist."""
+    from eval.datasets import DATA_ENV, data_dir
+
+    folder = data_dir()
+    found = sorted(folder.glob("*.npz")) if folder.is_dir() else []
+    where = (f"the shared drives are in {folder}, e.g. {found[0]}" if found
+             else f"no drives in {folder} either")
+    return f"{where}; set {DATA_ENV} to the folder of yours"
 
 
 def load_bench_sequence(path: Path) -> BenchSequence:
@@ -293,6 +304,14 @@ def _outcome(fut: cf.Future, signals) -> "JobResult | JobFailure":
         raise EstimationError(f"a worker process died ({exc}); the benchmark cannot go on") from None
 
 
+def _running(labels: dict, pending: set) -> str:
+    """The progress bar's words: the jobs running now (not the ones that just finished)."""
+    running = [labels[f] for f in pending if f.running()]
+    if not running:
+        return "waiting" if pending else "finishing"
+    return "running " + ", ".join(sorted(running)[:2]) + (f" and {len(running) - 2} more" if len(running) > 2 else "")
+
+
 def _initialiser(estimators: list[str]) -> str | None:
     return next((n for n in SMOOTHER_INITIAL_FROM if n in estimators), None)
 
@@ -327,7 +346,6 @@ def run_jobs(
     def record(res) -> list[tuple[str, str, Estimate | None]]:
         results[(res.sequence, res.estimator)] = res
         bar.update(1)
-        bar.set_description(f"{res.estimator} on {res.sequence} done")
         if on_result is not None:
             on_result(res)
         follow = []
@@ -343,6 +361,7 @@ def run_jobs(
             queue = [(k, n, None) for k in sequences for n in order]
             while queue:
                 key, name, initial = queue.pop(0)
+                bar.set_description(f"running {name} on {key}")
                 queue.extend(record(_job(sequences[key], key, name, configs[key], initial, smoother)))
             return results
         # Signals are deferred while the pool is managed (an exception inside its locks would
@@ -350,17 +369,21 @@ def run_jobs(
         with deferred() as signals:
             pool = cf.ProcessPoolExecutor(max_workers=jobs, initializer=_worker_signals)
             try:
-                pending = {
-                    pool.submit(_job, sequences[k], k, n, configs[k], None, smoother)
-                    for k in sequences for n in order
-                }
+                labels: dict[cf.Future, str] = {}
+
+                def submit(key, name, initial) -> cf.Future:
+                    fut = pool.submit(_job, sequences[key], key, name, configs[key], initial, smoother)
+                    labels[fut] = f"{name} on {key}"
+                    return fut
+
+                pending = {submit(k, n, None) for k in sequences for n in order}
                 while pending:
                     signals.check()
                     done, pending = cf.wait(pending, timeout=0.1, return_when=cf.FIRST_COMPLETED)
                     for fut in done:
                         for key, name, initial in record(_outcome(fut, signals)):
-                            pending.add(pool.submit(_job, sequences[key], key, name, configs[key],
-                                                    initial, smoother))
+                            pending.add(submit(key, name, initial))
+                    bar.set_description(_running(labels, pending))
                 signals.check()
             except BaseException:
                 _stop_pool(pool)  # Ctrl-C, SIGTERM, an error: end the workers now

@@ -295,3 +295,25 @@ def test_summary_reads_the_results_in_words_and_drops_empty_columns():
     assert "| ekf-decoupled | 1.00 | 13.00 | 2.0e10 | 6.7e14 |" in text
     assert "20400000000" not in text
     assert benchmark._fmt(0.0054) == "5.4e-3" and benchmark._fmt(0.0) == "0.00" and benchmark._fmt(123.456) == "123.46"
+
+
+def test_bench_on_a_missing_path_says_where_the_drives_are(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("VISLAM_DATA", str(tmp_path / "nowhere"))
+    assert main(["bench", str(tmp_path / "missing"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "missing: no such file or folder (no drives in" in err and "set VISLAM_DATA" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_progress_names_the_jobs_running_not_the_one_finished():
+    import concurrent.futures as cf
+
+    futs = [cf.Future() for _ in range(4)]
+    labels = dict(zip(futs, ["smoother on 0027", "ekf-joint on 0027", "ekf-joint on 0034", "mapping on 0034"]))
+    assert benchmark._running(labels, set(futs)) == "waiting"  # queued, none started
+    futs[0].set_running_or_notify_cancel()
+    assert benchmark._running(labels, set(futs)) == "running smoother on 0027"
+    for f in futs[1:]:
+        f.set_running_or_notify_cancel()
+    assert benchmark._running(labels, set(futs)) == "running ekf-joint on 0027, ekf-joint on 0034 and 2 more"
+    assert benchmark._running(labels, set()) == "finishing"
