@@ -460,8 +460,12 @@ def plot_nees_depth_sweep(
         for (name, param), values in series.items():
             v = np.array([np.nan if a is None else a for a in values], dtype=float)
             ok = np.isfinite(v) & (v > 0)
-            ax.plot(x[ok], v[ok], color=_colour(name, names.index(name)), marker="o",
-                    markersize=4, linewidth=1.6, linestyle="--" if param == "inverse-depth" else "-",
+            style = STYLES.get(name, {})
+            wide = style.get("linewidth", 1.6) > 2  # drawn under a narrower one it may coincide with
+            ax.plot(x[ok], v[ok], color=_colour(name, names.index(name)), marker=style.get("marker", "o"),
+                    markersize=8 if wide else 5, markerfacecolor="white" if wide else None,
+                    linewidth=3.0 if wide else 1.4, zorder=style.get("zorder", 2.0),
+                    linestyle=(0, (4, 2)) if param == "inverse-depth" else "-",
                     label=name if param is None else f"{name}, {param}")
         ax.set_yscale("log")
         ax.yaxis.set_major_formatter(_PlainLogFormatter())
