@@ -34,7 +34,7 @@ def kitti_data_dir() -> Path:
 @pytest.fixture(scope="session")
 def monte_carlo(regression_config):
     """The Monte Carlo study on the near-field simulation (tests/regression/simulation.py,
-    NEAR_FIELD: where the EKFs' first-order stereo model holds), run once per session."""
+    NEAR_FIELD: landmarks within 25 m, the second case), run once per session."""
     from tests.regression.simulation import NEAR_FIELD, run_monte_carlo
 
     mc = run_monte_carlo(regression_config, run_name, sim_changes=NEAR_FIELD)
