@@ -96,9 +96,10 @@ MAX_STRETCHES_LISTED = 10
 _ANGULAR, _LINEAR = slice(0, 3), slice(3, 6)
 
 
+@dataclass(frozen=True)
 class _Ratios:
-    """chi2 / dof of the total, linear and angular sums (1 on average when the data fit the
-    model; 0 when nothing is tested)."""
+    """The total, linear and angular sums ``chi2*`` with their ``dof*``, and their chi2 / dof
+    (1 on average when the data fit the model; 0 when nothing is tested)."""
 
     chi2: float
     dof: int
@@ -120,6 +121,12 @@ class _Ratios:
         return _ratio(self.chi2_angular, self.dof_angular)
 
 
+def _sums(chi2: np.ndarray, dof: np.ndarray) -> dict:
+    """:class:`_Ratios`'s fields from the (total, linear, angular) sums ``chi2`` and ``dof``."""
+    return {"chi2": float(chi2[0]), "dof": int(dof[0]), "chi2_linear": float(chi2[1]),
+            "dof_linear": int(dof[1]), "chi2_angular": float(chi2[2]), "dof_angular": int(dof[2])}
+
+
 @dataclass(frozen=True)
 class StretchCheck(_Ratios):
     """The normalised velocity residuals of one stretch of the drive.
@@ -133,12 +140,6 @@ class StretchCheck(_Ratios):
     start_s: float
     end_s: float
     n_intervals: int
-    chi2: float
-    dof: int
-    chi2_linear: float
-    dof_linear: int
-    chi2_angular: float
-    dof_angular: int
     threshold: float
     threshold_linear: float
     threshold_angular: float
@@ -188,12 +189,6 @@ class VelocityCheck(_Ratios):
     n_intervals: int
     n_excluded_intervals: int  # intervals with every direction left out (no vision)
     n_excluded_dims: int  # directions left out of the 6-dof test, over all intervals
-    chi2: float
-    dof: int
-    chi2_linear: float
-    dof_linear: int
-    chi2_angular: float
-    dof_angular: int
 
     @property
     def flagged(self) -> tuple[StretchCheck, ...]:
@@ -377,8 +372,7 @@ def velocity_check(solution, config: FilterConfig, *, stretch_s: float = 10.0,
         d = terms.dof[idx].sum(axis=0)
         stretches.append(StretchCheck(
             start_s=float(rel[idx[0]]), end_s=float(rel[idx[-1] + 1]), n_intervals=int(idx.size),
-            chi2=float(c[0]), dof=int(d[0]), chi2_linear=float(c[1]), dof_linear=int(d[1]),
-            chi2_angular=float(c[2]), dof_angular=int(d[2]),
+            **_sums(c, d),
             threshold=_threshold(int(d[0]), level, factor),
             threshold_linear=_threshold(int(d[1]), level, factor),
             threshold_angular=_threshold(int(d[2]), level, factor),
@@ -392,8 +386,7 @@ def velocity_check(solution, config: FilterConfig, *, stretch_s: float = 10.0,
         n_intervals=n,
         n_excluded_intervals=int(no_vision.sum()),
         n_excluded_dims=int(np.sum(6 - terms.dof[~no_vision, 0])),
-        chi2=float(c[0]), dof=int(d[0]), chi2_linear=float(c[1]), dof_linear=int(d[1]),
-        chi2_angular=float(c[2]), dof_angular=int(d[2]),
+        **_sums(c, d),
     )
     log.info("velocity check: %d of %d stretches flagged, chi2/dof %.3f (linear %.3f, "
              "angular %.3f), %d intervals without vision, %d directions left out",
