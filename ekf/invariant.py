@@ -577,25 +577,21 @@ def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off
     tracks, pc, Jt = tracks[ok], pc[ok], Jt[ok]
     k = tracks.size
     R, p = st.T[:3, :3], st.T[:3, 3]
-    if config.triangulation == "unscented":
-        # Mean and pixel-noise covariance to higher order; the pose part stays xi_l = xi_p.
-        pc, cov_c = triangulate_unscented(z[ok], cal.K, cal.baseline, V)
-        Rw = R @ imu_T_cam[:3, :3]
-        Cn = Rw @ cov_c @ Rw.T
-    else:
-        Gz = augmentation_jacobians(st.T, Jt, imu_T_cam)
-        Cn = Gz @ V @ np.swapaxes(Gz, 1, 2)
-    c = pc @ imu_T_cam[:3, :3].T + imu_T_cam[:3, 3]
-    lm_new = c @ R.T + p
     inverse_depth = config.landmark_parameterisation == "inverse-depth"
     if inverse_depth:  # x (ID-3) with dx = N_j [xi_p; xi_R] + Jz dz (N_j: ID-7 at the anchor)
-        x, Jz = idp.from_stereo(z[ok], cal.K, cal.baseline)
-        world_T_cam = st.T @ imu_T_cam
-        R_a = np.broadcast_to(world_T_cam[:3, :3], (k, 3, 3)).copy()
-        p_a = np.broadcast_to(world_T_cam[:3, 3], (k, 3)).copy()
-        Jd = idp.gauge_rows(x, R_a, p_a)
-        Cn = np.broadcast_to(Jz @ V @ Jz.T, (k, 3, 3))
-        lm_new = x
+        lm_new, R_a, p_a, Cn = idp.new_landmarks(z[ok], cal.K, cal.baseline, V, st.T @ imu_T_cam)
+        Jd = idp.gauge_rows(lm_new, R_a, p_a)
+    else:
+        if config.triangulation == "unscented":
+            # Mean and pixel-noise covariance to higher order; the pose part stays xi_l = xi_p.
+            pc, cov_c = triangulate_unscented(z[ok], cal.K, cal.baseline, V)
+            Rw = R @ imu_T_cam[:3, :3]
+            Cn = Rw @ cov_c @ Rw.T
+        else:
+            Gz = augmentation_jacobians(st.T, Jt, imu_T_cam)
+            Cn = Gz @ V @ np.swapaxes(Gz, 1, 2)
+        c = pc @ imu_T_cam[:3, :3].T + imu_T_cam[:3, 3]
+        lm_new = c @ R.T + p
     n_num = 0
     if not all_finite(lm_new, Cn):
         fin = finite_rows(lm_new) & finite_rows(Cn)

@@ -66,6 +66,19 @@ def from_stereo(z: np.ndarray, K: np.ndarray, baseline: float) -> tuple[np.ndarr
     return x, J
 
 
+def new_landmarks(z: np.ndarray, K: np.ndarray, baseline: float, pixel_cov: np.ndarray,
+                  world_T_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Landmarks started from their first stereo pixels ``z`` (n, 4), all anchored in the camera
+    ``world_T_cam``: ``(x (n, 3), R_a (n, 3, 3), p_a (n, 3), C_z (n, 3, 3))`` with ``C_z`` the
+    pixel-noise covariance of ``x`` (ID-3: exact). The anchor pose's own error is the filter's
+    to add (its pose Jacobian)."""
+    x, Jz = from_stereo(z, K, baseline)
+    n = x.shape[0]
+    R_a = np.broadcast_to(world_T_cam[:3, :3], (n, 3, 3)).copy()
+    p_a = np.broadcast_to(world_T_cam[:3, 3], (n, 3)).copy()
+    return x, R_a, p_a, np.broadcast_to(Jz @ pixel_cov @ Jz.T, (n, 3, 3))
+
+
 def bearing(x: np.ndarray) -> np.ndarray:
     """``b = [alpha, beta, 1]`` (n, 3)."""
     b = np.ones((x.shape[0], 3))

@@ -287,13 +287,9 @@ class JointState:
             return n_bad
         m, J_d, Cz = m[add], J_d[add], Cz[add]
         if self.inverse_depth:  # the same landmarks in anchored inverse depth (ID-3, ID-4)
-            x, Jz = idp.from_stereo(z[add], model.K, model.baseline)
-            world_T_cam = se3_inv(self.U) @ model.imu_T_cam
-            R_a = np.broadcast_to(world_T_cam[:3, :3], (n, 3, 3)).copy()
-            p_a = np.broadcast_to(world_T_cam[:3, 3], (n, 3)).copy()
-            J_d = idp.inverse_jacobian(x, R_a) @ J_d
-            Cz = np.broadcast_to(Jz @ model.V @ Jz.T, (n, 3, 3))
-            m = x
+            m, R_a, p_a, Cz = idp.new_landmarks(z[add], model.K, model.baseline, model.V,
+                                                se3_inv(self.U) @ model.imu_T_cam)
+            J_d = idp.inverse_jacobian(m, R_a) @ J_d
         Jd = J_d.reshape(3 * n, 6)
         B = Jd @ self.P[:6, :]  # cross-covariance with the whole state (3n, N)
         C = B[:, :6] @ Jd.T
