@@ -482,7 +482,7 @@ def run_joint(
                 valid = model.valid_observations(z, depth_limit=False)
                 active = st.slot[tracks] >= 0
                 upd = valid & active
-                valid &= model.valid_observations(z)  # new landmarks: within max_depth too
+                valid &= model.within_max_depth(z)  # new landmarks: within max_depth too
                 try:
                     n_acc, n_rej = st.update(model, tracks[upd], z[upd])
                     n_num = st.n_numerical

@@ -37,7 +37,7 @@ class LandmarkMap:
         valid = model.valid_observations(z, depth_limit=False)  # known: by predicted depth
         known = self.initialised[tracks]
         upd = valid & known
-        valid &= model.valid_observations(z)
+        valid &= model.within_max_depth(z)
         n_upd = n_num = 0
         if np.any(upd):
             tr = tracks[upd]

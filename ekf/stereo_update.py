@@ -129,11 +129,19 @@ class StereoModel:
         z = np.asarray(z, dtype=float)
         disparity = z[:, 0] - z[:, 2]
         ok = np.all(np.isfinite(z), axis=1) & (disparity > 0) & (disparity >= self.min_disparity)
-        if depth_limit and self.max_depth is not None:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                depth = self.K[0, 0] * self.baseline / disparity
-            ok &= depth <= self.max_depth
+        if depth_limit:
+            ok &= self.within_max_depth(z)
         return ok
+
+    def within_max_depth(self, z: np.ndarray) -> np.ndarray:
+        """Boolean (n,): the depth the pixels ``z`` triangulate to is <= max_depth (all True
+        without a limit; False where the disparity is not positive)."""
+        if self.max_depth is None:
+            return np.ones(len(z), dtype=bool)
+        disparity = z[:, 0] - z[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = self.K[0, 0] * self.baseline / disparity
+        return (disparity > 0) & (depth <= self.max_depth)
 
     def valid_predictions(self, q: np.ndarray) -> np.ndarray:
         """Boolean (n,): predicted camera point in front of the camera and within max_depth.
