@@ -27,10 +27,9 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import LogFormatter
-from scipy.stats import chi2
-
 from ekf.estimate import Estimate
 from eval.atomic import write_bytes
+from eval.consistency import chi2_bounds
 
 #: Per estimator: colour, line style, line width, marker and drawing order (zorder), stable
 #: across figures. Pairs that often draw the same curve (dead-reckoning / mapping, ekf-joint /
@@ -53,8 +52,6 @@ STYLES: dict[str, dict] = {
 }
 #: One colour per estimator (the colours of :data:`STYLES`).
 COLOURS = {name: style["color"] for name, style in STYLES.items()}
-#: Kept for callers: the dashed estimators of :data:`STYLES`.
-LINESTYLES = {n: s["linestyle"] for n, s in STYLES.items() if s["linestyle"] != "-"}
 _FALLBACK_LINESTYLES = ("-", (0, (5, 3)), "-.", ":", (0, (1, 1)), (0, (8, 2, 1, 2)))
 _FALLBACK_MARKERS = ("P", "X", "*", "h", "<", ">", "p", "d")
 #: Markers every this fraction of the axes diagonal; estimator k starts at k * _MARK_OFFSET.
@@ -351,7 +348,7 @@ def plot_vs_smoother(path, ekfs: Mapping[str, Estimate], smoother: Estimate, tit
 def nees_axis_range(dof: int, n_runs: int = 1) -> tuple[float, float]:
     """The NEES axis of :func:`plot_nees`: whole decades around the 95 % band, from a fifth of
     its lower end to twenty times its upper end ([0.1, 1000] for 6 dof)."""
-    lo, hi = chi2.ppf([0.025, 0.975], n_runs * dof) / n_runs
+    lo, hi = chi2_bounds(n_runs, dof)
     return 10.0 ** np.floor(np.log10(lo / 5)), 10.0 ** np.ceil(np.log10(hi * 20))
 
 
@@ -372,7 +369,7 @@ def plot_nees(
     lower panel on its own scale, and the main panel lists it with its mean. Legend entries say
     each mean (2.0e10 style) and the share of steps clipped. The y label is the same for every
     call; ``ylabel`` (e.g. what the NEES is measured against) becomes the legend's title."""
-    lo, hi = chi2.ppf([0.025, 0.975], n_runs * dof) / n_runs
+    lo, hi = chi2_bounds(n_runs, dof)
     ylo, yhi = nees_axis_range(dof, n_runs)
     n = max((len(v) for v in series.values()), default=0)
     x = np.arange(n) if times is None else np.asarray(times, dtype=float)[:n]
@@ -454,7 +451,7 @@ def plot_nees_depth_sweep(
     axes = fig.subplots(1, 2, sharex=True)
     names = list(dict.fromkeys(name for name, _ in pose))
     for ax, series, dof, what in ((axes[0], pose, 6, "pose"), (axes[1], landmark, 3, "landmark")):
-        lo, hi = chi2.ppf([0.025, 0.975], n_runs * dof) / n_runs
+        lo, hi = chi2_bounds(n_runs, dof)
         ax.axhspan(lo, hi, color="0.85", label=f"95 % band, {n_runs} runs")
         ax.axhline(dof, color="0.4", linewidth=0.8, linestyle=":", label="expected (= dof)")
         for (name, param), values in series.items():
