@@ -163,17 +163,26 @@ def _where_the_drives_are() -> str:
 def load_bench_sequence(path: Path) -> BenchSequence:
     """A data file, its ground truth (if found) and, for simulated files, the true landmarks."""
     from eval.groundtruth import find_ground_truth
-    from eval.loader import load_sequence, read_npz
+    from eval.loader import load_sequence
 
     seq = load_sequence(path, clean=False)
     gt = find_ground_truth(path)
-    truth = None
+    return BenchSequence(path.stem, str(path.resolve()), seq, gt, landmark_truth_beside(path, seq))
+
+
+def landmark_truth_beside(path: Path, seq: Sequence) -> np.ndarray | None:
+    """A simulated drive's true landmarks (``<stem>_landmarks.npz`` beside the data file, read as
+    carefully as the drive), one row per track of ``seq``; None where there is no such file."""
+    from eval.loader import read_npz
+
+    path = Path(path)
     lm_file = path.with_name(f"{path.stem}_landmarks.npz")
-    if lm_file.is_file():  # a simulated drive's true landmarks, read as carefully as the drive
-        d = read_npz(lm_file, ("landmarks",))
-        if "landmarks" in d and d["landmarks"].shape == (seq.n_tracks, 3):
-            truth = np.asarray(d["landmarks"], dtype=float)
-    return BenchSequence(path.stem, str(path.resolve()), seq, gt, truth)
+    if not lm_file.is_file():
+        return None
+    d = read_npz(lm_file, ("landmarks",))
+    if "landmarks" in d and d["landmarks"].shape == (seq.n_tracks, 3):
+        return np.asarray(d["landmarks"], dtype=float)
+    return None
 
 
 def collect_sequences(paths: list[str], frames: int | None = None, seed: int = 0) -> list[BenchSequence]:

@@ -52,6 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from eval.benchmark import landmark_truth_beside
     from eval.output_dir import OutputDir
     from eval.groundtruth import find_ground_truth
     from eval.loader import load_sequence
@@ -73,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     gt = find_ground_truth(args.file, override=args.gt,
                            cam_T_imu=None if model is None else model.cam_T_imu)
     plots = getattr(args, "plots", True)
-    landmark_truth = _landmark_truth(args.file, seq) if plots else None
+    landmark_truth = landmark_truth_beside(args.file, seq) if plots else None
     inputs = [args.file, args.config, getattr(gt, "source", None) or args.gt]
     expected = [*RUN_FILES, *(_plot_files(gt) if plots else ())]
     out = OutputDir(args.out, force=args.force, inputs=inputs, expected=expected)
@@ -87,20 +88,6 @@ def run(args: argparse.Namespace) -> int:
 def _plot_files(gt) -> tuple[str, ...]:
     """The plots a run may write (checked for clashes before the estimation starts)."""
     return (*RUN_PLOTS, *(RUN_PLOTS_WITH_TRUTH if gt is not None else ()))
-
-
-def _landmark_truth(path, seq) -> np.ndarray | None:
-    """A simulated drive's true landmarks (``<stem>_landmarks.npz`` beside it), drawn on the
-    map as the benchmark draws them (eval.benchmark.load_bench_sequence); None elsewhere."""
-    from eval.loader import read_npz
-
-    lm_file = Path(path).with_name(f"{Path(path).stem}_landmarks.npz")
-    if not lm_file.is_file():
-        return None
-    d = read_npz(lm_file, ("landmarks",))
-    if "landmarks" in d and d["landmarks"].shape == (seq.n_tracks, 3):
-        return np.asarray(d["landmarks"], dtype=float)
-    return None
 
 
 def _write_plots(tmp: Path, args, seq, gt, est, landmark_truth) -> list[Path]:
