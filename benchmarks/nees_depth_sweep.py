@@ -28,11 +28,11 @@ from ekf.errors import InputError  # noqa: E402
 from eval import plots  # noqa: E402
 from eval.atomic import write_json  # noqa: E402
 from eval.benchmark import DEFAULT_NEES_FRAMES, monte_carlo_nees, nees_sim_config  # noqa: E402
-from eval.commands.nees import MAX_SIM_DEPTH  # noqa: E402
+from eval.commands.nees import sim_depth_error  # noqa: E402
 from eval.consistency import LANDMARK_DOF, POSE_DOF, chi2_bounds  # noqa: E402
 from eval.output_dir import OutputDir  # noqa: E402
 from eval.registry import estimators_from_flag  # noqa: E402
-from eval.simulate import DEFAULT_SIM, simulate  # noqa: E402
+from eval.simulate import simulate  # noqa: E402
 
 DEPTHS = (10.0, 25.0, 40.0, 60.0, 100.0)
 ESTIMATORS = ("ekf-joint", "ekf-invariant", "smoother")
@@ -48,10 +48,9 @@ def depths_arg(text: str) -> list[float]:
         depths = [float(x) for x in text.split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a comma-separated list of numbers: {text!r}") from None
-    bad = [d for d in depths if not DEFAULT_SIM.min_depth < d <= MAX_SIM_DEPTH]
-    if bad:
-        raise argparse.ArgumentTypeError(f"each depth must be above {DEFAULT_SIM.min_depth:g} m "
-                                         f"and at most {MAX_SIM_DEPTH:g} m, got {bad[0]:g}")
+    why = next((w for w in map(sim_depth_error, depths) if w), None)
+    if why:
+        raise argparse.ArgumentTypeError(f"each depth {why}")
     return sorted(set(depths))
 
 

@@ -19,6 +19,16 @@ NEES_FILES = ("nees.json", "nees.png")
 MAX_SIM_DEPTH = 1000.0
 
 
+def sim_depth_error(depth: float) -> str | None:
+    """Why ``depth`` is not a usable simulated landmark range (None when it is)."""
+    from eval.simulate import DEFAULT_SIM
+
+    if DEFAULT_SIM.min_depth < depth <= MAX_SIM_DEPTH:
+        return None
+    return (f"must be above the simulator's min_depth {DEFAULT_SIM.min_depth:g} m and at most "
+            f"{MAX_SIM_DEPTH:g} m, got {depth:g}")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from eval.benchmark import DEFAULT_NEES_FRAMES
     from eval.runjob import add_filter_arguments
@@ -55,7 +65,6 @@ def run(args: argparse.Namespace) -> int:
     from eval.benchmark import monte_carlo_nees
     from eval.registry import estimators_from_flag
     from eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
-    from eval.simulate import DEFAULT_SIM
 
     estimators = estimators_from_flag(args.estimators, NEES_DEFAULT)
     config = filter_config_from_args(args)
@@ -66,9 +75,8 @@ def run(args: argparse.Namespace) -> int:
     if args.frames is not None and args.frames < 2:
         raise InputError(f"--frames must be >= 2, got {args.frames}")
     depth = args.sim_max_depth
-    if depth is not None and not DEFAULT_SIM.min_depth < depth <= MAX_SIM_DEPTH:
-        raise InputError(f"--sim-max-depth must be above the simulator's min_depth "
-                         f"{DEFAULT_SIM.min_depth:g} m and at most {MAX_SIM_DEPTH:g} m, got {depth:g}")
+    if depth is not None and (why := sim_depth_error(depth)):
+        raise InputError(f"--sim-max-depth {why}")
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 1:
         raise InputError(f"--jobs must be >= 1, got {jobs}")
