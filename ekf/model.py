@@ -445,15 +445,20 @@ def model_from_settings(path: str | Path) -> Model | None:
 # --- using a model ------------------------------------------------------------------------------
 
 
+def with_extrinsic(seq, cam_T_imu: np.ndarray):
+    """``seq`` with ``cam_T_imu`` as its extrinsic (``calibration.cam_T_imu``)."""
+    return dataclasses.replace(seq, calibration=dataclasses.replace(
+        seq.calibration, cam_T_imu=np.array(cam_T_imu, dtype=float)))
+
+
 def model_sequence(seq, model: Model):
     """``seq`` with the model's extrinsic as ``calibration.cam_T_imu`` and the model's gyro
     bias (if any) subtracted from the angular velocities. Apply once per sequence."""
-    calibration = dataclasses.replace(seq.calibration, cam_T_imu=np.array(model.cam_T_imu))
-    changes: dict[str, Any] = {"calibration": calibration}
-    if model.gyro_bias is not None:
-        changes["angular_velocity"] = np.asarray(seq.angular_velocity, dtype=float) \
-            - np.asarray(model.gyro_bias)[None, :]
-    return dataclasses.replace(seq, **changes)
+    seq = with_extrinsic(seq, model.cam_T_imu)
+    if model.gyro_bias is None:
+        return seq
+    return dataclasses.replace(seq, angular_velocity=np.asarray(seq.angular_velocity, dtype=float)
+                               - np.asarray(model.gyro_bias)[None, :])
 
 
 def interval_sigma_factor(pairing: str) -> float:

@@ -64,7 +64,7 @@ from scipy.stats import chi2
 from ekf.config import VELOCITY_PAIRINGS, FilterConfig
 from ekf.conventions import estimate_cov_to_gtsam
 from ekf.errors import EstimationError
-from ekf.model import interval_sigma_factor
+from ekf.model import interval_sigma_factor, with_extrinsic
 from ekf.sequence import Sequence
 from graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
 from graph.settings import SmootherSettings
@@ -276,14 +276,6 @@ EXTRINSIC_TEST_LEVEL = 0.99
 #: EM has converged when no log sigma moves by more than ``rtol`` and no determined extrinsic
 #: component by more than this many of its standard deviations.
 EXTRINSIC_STEP_TOL = 0.1
-
-
-def with_extrinsic(seq: Sequence, cam_T_imu: np.ndarray) -> Sequence:
-    """``seq`` with ``cam_T_imu`` as its extrinsic."""
-    import dataclasses
-
-    return dataclasses.replace(seq, calibration=dataclasses.replace(
-        seq.calibration, cam_T_imu=np.array(cam_T_imu, dtype=float)))
 
 
 def em_noise(seq: Sequence, config: FilterConfig, settings: SmootherSettings, *,
