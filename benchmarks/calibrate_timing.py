@@ -16,11 +16,11 @@ import numpy as np
 
 
 def main(paths: list[str]) -> int:
-    from ekf.config import FilterConfig
-    from eval.loader import load_sequence
-    from graph.extrinsic import lever_arm
-    from graph.identification import identify_model
-    from graph.settings import SmootherSettings
+    from vislam.ekf.config import FilterConfig
+    from vislam.eval.loader import load_sequence
+    from vislam.graph.extrinsic import lever_arm
+    from vislam.graph.identification import identify_model
+    from vislam.graph.settings import SmootherSettings
 
     for path in paths:
         seq = load_sequence(path, clean=False)

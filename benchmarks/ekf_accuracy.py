@@ -10,17 +10,14 @@ frames with ground truth are scored (eval.metrics.ate_rmse). Prints one line per
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from ekf.config import FilterConfig  # noqa: E402
-from eval.datasets import data_dir, drive_path  # noqa: E402
-from eval.groundtruth import find_ground_truth  # noqa: E402
-from eval.loader import load_sequence  # noqa: E402
-from eval.metrics import ate_rmse  # noqa: E402
+from vislam.ekf.config import FilterConfig
+from vislam.eval.datasets import data_dir, drive_path
+from vislam.eval.groundtruth import find_ground_truth
+from vislam.eval.loader import load_sequence
+from vislam.eval.metrics import ate_rmse
 
 
 def parse_settings(items: list[str]) -> dict:
@@ -44,7 +41,7 @@ def parse_settings(items: list[str]) -> dict:
 
 
 def main(argv=None) -> int:
-    from ekf.estimators import ESTIMATORS
+    from vislam.ekf.estimators import ESTIMATORS
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=data_dir())

@@ -21,17 +21,16 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ekf_accuracy import parse_settings  # noqa: E402
 
-from ekf.config import FilterConfig  # noqa: E402
-from eval.datasets import drive_path  # noqa: E402
-from eval.loader import load_sequence  # noqa: E402
+from vislam.ekf.config import FilterConfig  # noqa: E402
+from vislam.eval.datasets import drive_path  # noqa: E402
+from vislam.eval.loader import load_sequence  # noqa: E402
 
 
 def main(argv=None) -> int:
-    from ekf.estimators import ESTIMATORS
+    from vislam.ekf.estimators import ESTIMATORS
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("path", nargs="?", type=Path, default=drive_path("0034"))

@@ -21,18 +21,16 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from ekf.config import LANDMARK_PARAMETERISATIONS, FilterConfig  # noqa: E402
-from ekf.errors import InputError  # noqa: E402
-from eval import plots  # noqa: E402
-from eval.atomic import write_json  # noqa: E402
-from eval.benchmark import DEFAULT_NEES_FRAMES, monte_carlo_nees, nees_sim_config  # noqa: E402
-from eval.commands.nees import sim_depth_error  # noqa: E402
-from eval.consistency import LANDMARK_DOF, POSE_DOF, chi2_bounds  # noqa: E402
-from eval.output_dir import OutputDir  # noqa: E402
-from eval.registry import estimators_from_flag  # noqa: E402
-from eval.simulate import simulate  # noqa: E402
+from vislam.ekf.config import LANDMARK_PARAMETERISATIONS, FilterConfig
+from vislam.ekf.errors import InputError
+from vislam.eval import plots
+from vislam.eval.atomic import write_json
+from vislam.eval.benchmark import DEFAULT_NEES_FRAMES, monte_carlo_nees, nees_sim_config
+from vislam.eval.commands.nees import sim_depth_error
+from vislam.eval.consistency import LANDMARK_DOF, POSE_DOF, chi2_bounds
+from vislam.eval.output_dir import OutputDir
+from vislam.eval.registry import estimators_from_flag
+from vislam.eval.simulate import simulate
 
 DEPTHS = (10.0, 25.0, 40.0, 60.0, 100.0)
 ESTIMATORS = ("ekf-joint", "ekf-invariant", "smoother")

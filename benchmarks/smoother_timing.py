@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ekf.config import FilterConfig
-from eval.groundtruth import find_ground_truth
-from eval.loader import load_sequence
+from vislam.ekf.config import FilterConfig
+from vislam.eval.groundtruth import find_ground_truth
+from vislam.eval.loader import load_sequence
 
 
 def main() -> None:
@@ -34,7 +34,7 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="a SmootherSettings or FilterConfig field (repeatable), e.g. rejection_rounds=2")
     args = parser.parse_args()
-    from graph.settings import SmootherSettings
+    from vislam.graph.settings import SmootherSettings
 
     changes: dict[str, dict] = {"settings": {"gyro_bias": args.gyro_bias},
                                 "config": {"clean_tracks": not args.no_clean, "velocity_pairing": args.pairing}}
@@ -47,9 +47,9 @@ def main() -> None:
     if args.set:
         print(f"settings changed: {args.set}")
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
-    from eval.metrics import trajectory_metrics
-    from graph.isam2 import run_isam2
-    from graph.smoother import run_smoother
+    from vislam.eval.metrics import trajectory_metrics
+    from vislam.graph.isam2 import run_isam2
+    from vislam.graph.smoother import run_smoother
 
     for path in args.files:
         seq = load_sequence(path)

@@ -4,9 +4,9 @@ Lie-group and stereo-camera math, the shared data types (:class:`Sequence`,
 :class:`Estimate`), the covariance conventions and the filter variants.
 """
 
-from ekf.errors import EstimationError, InputError
-from ekf.estimate import Estimate
-from ekf.sequence import Calibration, Observations, Sequence
+from vislam.ekf.errors import EstimationError, InputError
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.sequence import Calibration, Observations, Sequence
 
 __all__ = [
     "Calibration",

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ekf.sequence import Observations, Sequence
+from vislam.ekf.sequence import Observations, Sequence
 
 log = logging.getLogger(__name__)
 

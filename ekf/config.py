@@ -43,7 +43,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ekf.errors import InputError
+from vislam.ekf.errors import InputError
 
 try:  # Python 3.11+
     import tomllib

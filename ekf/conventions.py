@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ekf.geometry import adjoint, se3_inv
+from vislam.ekf.geometry import adjoint, se3_inv
 
 #: Permutation between translation-first ``[rho; phi]`` and rotation-first ``[phi; rho]``.
 SWAP = np.block([[np.zeros((3, 3)), np.eye(3)], [np.eye(3), np.zeros((3, 3))]])

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ekf.config import FilterConfig
-from ekf.estimate import Estimate
-from ekf.numerics import NumericalGuard, check_finite_trajectory
-from ekf.prediction import predict_pose
-from ekf.runner import (
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.numerics import NumericalGuard, check_finite_trajectory
+from vislam.ekf.prediction import predict_pose
+from vislam.ekf.runner import (
     Progress,
     StepRecorder,
     blas_limits,
@@ -17,7 +17,7 @@ from ekf.runner import (
     prepare_sequence,
     report_progress,
 )
-from ekf.sequence import Sequence
+from vislam.ekf.sequence import Sequence
 
 
 def dead_reckon(

@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ekf.config import FilterConfig
-from ekf.estimate import Estimate
-from ekf.mapping import LandmarkMap
-from ekf.numerics import NumericalGuard, UpdateRejected, all_finite
-from ekf.prediction import predict_pose, se3_exp_single
-from ekf.runner import (
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.mapping import LandmarkMap
+from vislam.ekf.numerics import NumericalGuard, UpdateRejected, all_finite
+from vislam.ekf.prediction import predict_pose, se3_exp_single
+from vislam.ekf.runner import (
     Progress,
     StepRecorder,
     blas_limits,
@@ -30,8 +30,8 @@ from ekf.runner import (
     prepare_sequence,
     report_progress,
 )
-from ekf.sequence import Sequence
-from ekf.stereo_update import StereoModel
+from vislam.ekf.sequence import Sequence
+from vislam.ekf.stereo_update import StereoModel
 
 
 def pose_update_exact_landmarks(

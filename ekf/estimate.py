@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ekf.errors import EstimationError
+from vislam.ekf.errors import EstimationError
 
 _ARRAYS = (
     "timestamps",

@@ -10,12 +10,12 @@ from __future__ import annotations
 from functools import partial
 from typing import Callable
 
-from ekf.decoupled import run_decoupled
-from ekf.dead_reckoning import run_dead_reckoning
-from ekf.estimate import Estimate
-from ekf.invariant import run_invariant
-from ekf.joint import run_joint
-from ekf.mapping import run_mapping
+from vislam.ekf.decoupled import run_decoupled
+from vislam.ekf.dead_reckoning import run_dead_reckoning
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.invariant import run_invariant
+from vislam.ekf.joint import run_joint
+from vislam.ekf.mapping import run_mapping
 
 Estimator = Callable[..., Estimate]
 

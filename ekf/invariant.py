@@ -64,12 +64,12 @@ from scipy.linalg.blas import dtrsm
 from scipy.linalg.lapack import dpotrf
 from scipy.stats import chi2
 
-from ekf import inverse_depth as idp
-from ekf.camera import dpi_dq, project, triangulate_unscented, triangulate_with_jacobian
-from ekf.config import FilterConfig
-from ekf.conventions import left_cov_to_estimate
-from ekf.estimate import Estimate
-from ekf.numerics import (
+from vislam.ekf import inverse_depth as idp
+from vislam.ekf.camera import dpi_dq, project, triangulate_unscented, triangulate_with_jacobian
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.conventions import left_cov_to_estimate
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.numerics import (
     NumericalGuard,
     UpdateRejected,
     all_finite,
@@ -78,16 +78,16 @@ from ekf.numerics import (
     finite_norm2,
     finite_rows,
 )
-from ekf.geometry import (
+from vislam.ekf.geometry import (
     adjoint,
     hat,
     homogeneous,
     so3_left_jacobian_inv,
     so3_log,
 )
-from ekf.prediction import se3_exp_single, se3_left_jacobian, so3_exp_and_left_jacobian
-from ekf.runner import blas_limits, finish_estimate, interval_twists, prepare_sequence
-from ekf.sequence import Sequence
+from vislam.ekf.prediction import se3_exp_single, se3_left_jacobian, so3_exp_and_left_jacobian
+from vislam.ekf.runner import blas_limits, finish_estimate, interval_twists, prepare_sequence
+from vislam.ekf.sequence import Sequence
 
 
 ESTIMATOR_NAME = "ekf-invariant"

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ekf.geometry import hat
+from vislam.ekf.geometry import hat
 
 
 def from_stereo(z: np.ndarray, K: np.ndarray, baseline: float) -> tuple[np.ndarray, np.ndarray]:

@@ -27,19 +27,19 @@ import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 from scipy.linalg.blas import dsyrk
 
-from ekf.config import FilterConfig
-from ekf.estimate import Estimate
-from ekf.numerics import NumericalGuard, UpdateRejected, all_finite, finite_norm2, finite_rows
-from ekf import inverse_depth as idp
-from ekf.geometry import adjoint, hat, se3_inv
-from ekf.prediction import (
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.numerics import NumericalGuard, UpdateRejected, all_finite, finite_norm2, finite_rows
+from vislam.ekf import inverse_depth as idp
+from vislam.ekf.geometry import adjoint, hat, se3_inv
+from vislam.ekf.prediction import (
     se3_exp_single,
     bias_transition,
     predict_mean,
     prediction_jacobian,
     process_noise,
 )
-from ekf.runner import (
+from vislam.ekf.runner import (
     Progress,
     StepRecorder,
     blas_limits,
@@ -49,8 +49,8 @@ from ekf.runner import (
     report_progress,
     tracks_ending,
 )
-from ekf.sequence import Sequence
-from ekf.stereo_update import StereoModel
+from vislam.ekf.sequence import Sequence
+from vislam.ekf.stereo_update import StereoModel
 
 _AR3 = np.arange(3)
 

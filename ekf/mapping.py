@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ekf.config import FilterConfig
-from ekf.dead_reckoning import dead_reckon
-from ekf.estimate import Estimate
-from ekf.numerics import NumericalGuard, all_finite, finite_rows
-from ekf.runner import Progress, StepRecorder, blas_limits, build_estimate, prepare_sequence
-from ekf.sequence import Sequence
-from ekf.stereo_update import StereoModel, batched_landmark_update_checked
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.dead_reckoning import dead_reckon
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.numerics import NumericalGuard, all_finite, finite_rows
+from vislam.ekf.runner import Progress, StepRecorder, blas_limits, build_estimate, prepare_sequence
+from vislam.ekf.sequence import Sequence
+from vislam.ekf.stereo_update import StereoModel, batched_landmark_update_checked
 
 
 class LandmarkMap:

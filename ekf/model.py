@@ -59,7 +59,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ekf.config import (
+from vislam.ekf.config import (
     FILTER_RULES,
     SIGMA_MIN,
     FilterConfig,
@@ -71,8 +71,8 @@ from ekf.config import (
     sigma,
     sigma3,
 )
-from ekf.errors import InputError
-from ekf.geometry import is_rigid
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import is_rigid
 
 #: Names of the six extrinsic components, in the order of ``cam_T_imu_sigma``.
 #: How every model file vislam writes begins (a file that does not is the user's).

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from ekf.errors import EstimationError
+from vislam.ekf.errors import EstimationError
 
 log = logging.getLogger(__name__)
 

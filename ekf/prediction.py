@@ -29,8 +29,8 @@ import math
 
 import numpy as np
 
-from ekf.errors import InputError
-from ekf.geometry import adjoint, curly_hat, se3_exp, theta_coeffs_scalar
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import adjoint, curly_hat, se3_exp, theta_coeffs_scalar
 
 #: Selects the angular rows of a twist: ``u - GYRO_SELECT @ b`` removes a gyro bias ``b``.
 GYRO_SELECT = np.vstack([np.zeros((3, 3)), np.eye(3)])

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ekf.camera import triangulate_with_jacobian
-from ekf.errors import InputError
-from ekf.geometry import se3_inv
-from ekf.sequence import Sequence
+from vislam.ekf.camera import triangulate_with_jacobian
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import se3_inv
+from vislam.ekf.sequence import Sequence
 
 #: Gauss-Newton stops for a track once its step is below this, relative to 1 + |m|.
 STEP_TOL = 1e-9

@@ -28,15 +28,15 @@ from typing import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from ekf.cleaning import clean_sequence
-from ekf.config import FilterConfig
-from ekf.conventions import ekf_cov_to_estimate
-from ekf.errors import InputError
-from ekf.estimate import Estimate
-from ekf.geometry import se3_inv
-from ekf.numerics import NumericalGuard, check_finite_trajectory
-from ekf.prediction import paired_velocities
-from ekf.sequence import Sequence
+from vislam.ekf.cleaning import clean_sequence
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.conventions import ekf_cov_to_estimate
+from vislam.ekf.errors import InputError
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.geometry import se3_inv
+from vislam.ekf.numerics import NumericalGuard, check_finite_trajectory
+from vislam.ekf.prediction import paired_velocities
+from vislam.ekf.sequence import Sequence
 
 log = logging.getLogger(__name__)
 

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ekf.camera import stereo_matrix
-from ekf.geometry import se3_inv
+from vislam.ekf.camera import stereo_matrix
+from vislam.ekf.geometry import se3_inv
 
 
 @dataclass(frozen=True)

@@ -27,10 +27,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from ekf.camera import dpi_dq, triangulate_unscented, triangulate_with_jacobian
-from ekf.geometry import hat, se3_inv
-from ekf.numerics import all_finite, batched_solve, finite_rows
-from ekf.sequence import Calibration
+from vislam.ekf.camera import dpi_dq, triangulate_unscented, triangulate_with_jacobian
+from vislam.ekf.geometry import hat, se3_inv
+from vislam.ekf.numerics import all_finite, batched_solve, finite_rows
+from vislam.ekf.sequence import Calibration
 
 #: Maps the reduced rows [uL, v, uR] to the four stereo rows [uL, vL, uR, vR].
 REDUCE_A = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, 1, 0]])

@@ -37,21 +37,21 @@ from typing import Callable
 
 import numpy as np
 
-from ekf.config import FilterConfig
-from ekf.errors import EstimationError, InputError
-from ekf.estimate import Estimate
-from ekf.sequence import Observations, Sequence
-from eval.consistency import reference_honesty
-from eval.registry import SMOOTHER_INITIAL_FROM, SMOOTHERS, uses_initial
-from eval.runjob import (
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.errors import EstimationError, InputError
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.sequence import Observations, Sequence
+from vislam.eval.consistency import reference_honesty
+from vislam.eval.registry import SMOOTHER_INITIAL_FROM, SMOOTHERS, uses_initial
+from vislam.eval.runjob import (
     RPE_DEFINITION,
     JobResult,
     Progress,
     run_estimator,
     trajectory_scores,
 )
-from eval.signals import deferred
-from graph.settings import SmootherSettings
+from vislam.eval.signals import deferred
+from vislam.graph.settings import SmootherSettings
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +115,7 @@ class JobFailure:
 
 def simulated_sequence(seed: int = 0, frames: int | None = None) -> BenchSequence:
     """The simulator's default drive (``seed``, ``frames`` steps) with its exact truth."""
-    from eval.simulate import DEFAULT_SIM, simulate
+    from vislam.eval.simulate import DEFAULT_SIM, simulate
 
     config = dataclasses.replace(
         DEFAULT_SIM, seed=int(seed), n_frames=int(frames or DEFAULT_BENCH_FRAMES),
@@ -151,7 +151,7 @@ def expand_paths(paths: list[str]) -> list[Path]:
 
 def _where_the_drives_are() -> str:
     """Where vislam looks for the shared KITTI drives, for a path that does not exist."""
-    from eval.datasets import DATA_ENV, data_dir
+    from vislam.eval.datasets import DATA_ENV, data_dir
 
     folder = data_dir()
     found = sorted(folder.glob("*.npz")) if folder.is_dir() else []
@@ -162,8 +162,8 @@ def _where_the_drives_are() -> str:
 
 def load_bench_sequence(path: Path) -> BenchSequence:
     """A data file, its ground truth (if found) and, for simulated files, the true landmarks."""
-    from eval.groundtruth import find_ground_truth
-    from eval.loader import load_sequence
+    from vislam.eval.groundtruth import find_ground_truth
+    from vislam.eval.loader import load_sequence
 
     seq = load_sequence(path, clean=False)
     gt = find_ground_truth(path)
@@ -173,7 +173,7 @@ def load_bench_sequence(path: Path) -> BenchSequence:
 def landmark_truth_beside(path: Path, seq: Sequence) -> np.ndarray | None:
     """A simulated drive's true landmarks (``<stem>_landmarks.npz`` beside the data file, read as
     carefully as the drive), one row per track of ``seq``; None where there is no such file."""
-    from eval.loader import read_npz
+    from vislam.eval.loader import read_npz
 
     path = Path(path)
     lm_file = path.with_name(f"{path.stem}_landmarks.npz")
@@ -205,7 +205,7 @@ def apply_model_to(sequences: list[BenchSequence], model, config: FilterConfig |
     data, its ground truth converted with the model's extrinsic (a simulated drive's truth
     is already in the IMU frame) and, with ``config``, the filter settings under the model
     (:func:`ekf.model.model_config`). ``mode`` and ``record`` go to results.json."""
-    from ekf.model import model_config, model_sequence
+    from vislam.ekf.model import model_config, model_sequence
 
     out = []
     for bs in sequences:
@@ -242,7 +242,7 @@ def identify_models(sequences: list[BenchSequence], config: FilterConfig,
     before a drive's identification runs (not when the cache has it). A drive whose model
     cannot be identified (EstimationError: too short, the smoother fails) is benchmarked as
     given, with a warning and ``identification_failed`` in its record."""
-    from eval.model_cache import identified_model
+    from vislam.eval.model_cache import identified_model
 
     out = []
     for bs in sequences:
@@ -413,7 +413,7 @@ def reference_smoother(ests: dict[str, Estimate]) -> str | None:
 
 def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict) -> dict:
     """The results.json entry of one sequence (see the module docstring)."""
-    from eval.consistency import landmark_nees, landmark_rmse, versus_smoother
+    from vislam.eval.consistency import landmark_nees, landmark_rmse, versus_smoother
 
     ests = {n: o.estimate for n, o in outcomes.items() if isinstance(o, JobResult)}
     ref = reference_smoother(ests)
@@ -459,8 +459,8 @@ def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict) -> 
 
 def sequence_figures(folder: Path, bs: BenchSequence, ests: dict[str, Estimate]) -> list[Path]:
     """The PNG figures of one sequence into ``folder``; returns the paths written."""
-    from eval import plots
-    from eval.consistency import pose_nees
+    from vislam.eval import plots
+    from vislam.eval.consistency import pose_nees
 
     written = []
     if not ests:
@@ -592,7 +592,7 @@ def readings(s: dict) -> list[str]:
     and which over- or underconfident against ground truth (mean pose NEES against the band of
     one 6-dof NEES, :data:`eval.consistency.POSE_NEES_BAND`) and against the smoother, and the
     warning when the reference itself is not consistent (:func:`_reference_honesty`)."""
-    from eval.consistency import POSE_NEES_BAND
+    from vislam.eval.consistency import POSE_NEES_BAND
 
     ok = [r for r in s["estimators"] if not r["error"]]
     out = []
@@ -710,8 +710,8 @@ def run_benchmark(
     settings (defaults when None). The folder is checked before the first job starts and
     written as :mod:`eval.output_dir` says (``force``: write beside files vislam did not write,
     never over them)."""
-    from eval.atomic import atomic_symlink
-    from eval.output_dir import OutputDir
+    from vislam.eval.atomic import atomic_symlink
+    from vislam.eval.output_dir import OutputDir
 
     t0 = time.perf_counter()
     by_key = {bs.name: bs.sequence for bs in sequences}
@@ -736,9 +736,9 @@ def run_benchmark(
 
 def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smoother, settings,
                    t0: float) -> tuple[dict, str]:
-    from eval.atomic import write_json, write_text
-    from eval.export import write_tum
-    from eval.report import report_html
+    from vislam.eval.atomic import write_json, write_text
+    from vislam.eval.export import write_tum
+    from vislam.eval.report import report_html
 
     results = {
         "schema": SCHEMA,
@@ -814,7 +814,7 @@ def redraw_noise(truth, sim_config, rng: np.random.Generator) -> Sequence:
 def landmark_nees_by_source(est: Estimate, truth: np.ndarray) -> np.ndarray:
     """Landmark NEES per source track (n_source,): a cleaned estimate's tracks are mapped back
     through ``info["track_origin"]`` (the first track of a split one counts)."""
-    from eval.consistency import landmark_nees
+    from vislam.eval.consistency import landmark_nees
 
     nees = landmark_nees(est, truth)
     out = np.full(truth.shape[0], np.nan)
@@ -835,7 +835,7 @@ def nees_sim_config(seed: int, frames: int | None = None, max_depth: float | Non
     the default range's observations per frame, counted on noise-free drives of the seed,
     ``_DENSITY_PROBE_FRAMES`` frames long, at both ranges (capped at the simulator's largest
     density)."""
-    from eval.simulate import _SIM_UPPER_BOUNDS, DEFAULT_SIM, simulate
+    from vislam.eval.simulate import _SIM_UPPER_BOUNDS, DEFAULT_SIM, simulate
 
     config = dataclasses.replace(
         DEFAULT_SIM, seed=int(seed), n_frames=int(frames or DEFAULT_NEES_FRAMES), name=f"mc-seed{seed}"
@@ -865,8 +865,8 @@ def monte_carlo_nees(
     one simulated drive (seed ``seed``, landmarks up to ``sim_max_depth`` m deep: see
     :func:`nees_sim_config`); the nees.json content."""
     smoother = smoother if smoother is not None else SmootherSettings()
-    from eval.consistency import LANDMARK_DOF, POSE_DOF, anees, chi2_bounds, pose_nees
-    from eval.simulate import simulate
+    from vislam.eval.consistency import LANDMARK_DOF, POSE_DOF, anees, chi2_bounds, pose_nees
+    from vislam.eval.simulate import simulate
 
     if runs < 1:
         raise InputError(f"--runs must be >= 1, got {runs}")

@@ -19,8 +19,8 @@ import os
 import signal
 import sys
 
-from ekf.errors import EstimationError, InputError
-from eval.signals import Terminated, raise_terminated
+from vislam.ekf.errors import EstimationError, InputError
+from vislam.eval.signals import Terminated, raise_terminated
 
 #: subcommand -> (module under eval.commands, one-line help)
 COMMANDS = {
@@ -50,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
                                 parser_class=OneLineParser)
     for name, (module, help_text) in COMMANDS.items():
-        mod = importlib.import_module(f"eval.commands.{module}")
+        mod = importlib.import_module(f"vislam.eval.commands.{module}")
         p = sub.add_parser(name, help=help_text, description=help_text)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from ekf.estimate import Estimate
+from vislam.ekf.estimate import Estimate
 
 POSE_DOF = 6
 LANDMARK_DOF = 3
@@ -123,7 +123,7 @@ def anees(nees: np.ndarray, dof: int, probability: float = 0.95) -> AneesResult:
 def pose_nees(est: Estimate, gt_frames: np.ndarray, gt_poses: np.ndarray) -> np.ndarray:
     """Pose NEES (T,) of ``est`` against ground truth; NaN at step 0, at steps without ground
     truth, and where the covariance is missing."""
-    from eval.metrics import nees_pose
+    from vislam.eval.metrics import nees_pose
 
     out = np.full(est.n_frames, np.nan)
     frames = np.asarray(gt_frames, dtype=np.int64)
@@ -160,7 +160,7 @@ def landmark_truth_for(est: Estimate, truth: np.ndarray) -> np.ndarray:
 def landmark_nees(est: Estimate, truth: np.ndarray) -> np.ndarray:
     """Landmark NEES (M_est,) against true positions (source-track indexed); NaN where the
     estimate has no landmark or no covariance."""
-    from eval.metrics import nees_points
+    from vislam.eval.metrics import nees_points
 
     gt = landmark_truth_for(est, truth)
     out = np.full(est.landmarks.shape[0], np.nan)
@@ -259,8 +259,8 @@ def versus_smoother(est: Estimate, smoother: Estimate, probability: float = 0.95
 def ate_or_none(est_poses: np.ndarray, ref_poses: np.ndarray, align: str | None) -> float | None:
     """ATE RMSE (m) of ``est_poses`` against ``ref_poses``; None where it cannot be computed
     (degenerate alignment, non-finite poses)."""
-    from ekf.errors import InputError
-    from eval.metrics import ate_rmse
+    from vislam.ekf.errors import InputError
+    from vislam.eval.metrics import ate_rmse
 
     try:
         return _finite_or_none(ate_rmse(est_poses, ref_poses, align=align))

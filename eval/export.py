@@ -22,7 +22,7 @@ from typing import Callable, Mapping
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ekf.errors import InputError
+from vislam.ekf.errors import InputError
 
 #: Number format of the text writers: 17 significant digits round-trip a float64 exactly.
 FLOAT_FORMAT = "%.17g"

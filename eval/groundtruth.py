@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ekf.errors import InputError
-from ekf.geometry import is_rigid
-from ekf.sequence import Calibration
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import is_rigid
+from vislam.ekf.sequence import Calibration
 
 #: Rigidity tolerance for the rotation part of a pose line (files carry ~7 digits).
 RIGID_TOL = 1e-4
@@ -84,7 +84,7 @@ class GroundTruth:
 def read_kitti_poses(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     """Camera poses ``P`` (n, 4, 4) and the time column (n,) or None, from a 12- or
     13-column KITTI pose file. Faults raise :class:`InputError` naming file and line."""
-    from eval.loader import check_regular_file, open_for_reading
+    from vislam.eval.loader import check_regular_file, open_for_reading
 
     path = Path(path)
     what = "ground-truth file"
@@ -264,7 +264,7 @@ def find_ground_truth(
         except (OSError, ValueError) as exc:
             raise InputError(f"{path}: cannot access the ground-truth file ({exc})") from None
     if calibration is None or n_frames is None:
-        from eval.loader import read_calibration
+        from vislam.eval.loader import read_calibration
 
         calibration, n_frames = read_calibration(npz_path)
     return load_ground_truth(path, calibration, n_frames, cam_T_imu=cam_T_imu,

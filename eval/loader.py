@@ -78,9 +78,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ekf.errors import InputError
-from ekf.geometry import is_rigid, se3_inv
-from ekf.sequence import Calibration, Observations, Sequence
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import is_rigid, se3_inv
+from vislam.ekf.sequence import Calibration, Observations, Sequence
 
 log = logging.getLogger(__name__)
 
@@ -160,7 +160,7 @@ def load_sequence_with_report(
     arrays, report = _read_validated(path)
     seq = sequence_from_arrays(arrays, name=path.stem, source=str(path))
     if clean:
-        from ekf.cleaning import clean_sequence
+        from vislam.ekf.cleaning import clean_sequence
 
         seq, _ = clean_sequence(seq)
     return seq, report

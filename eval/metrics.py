@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ekf.errors import InputError
-from ekf.geometry import se3_inv, se3_log, vee
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import se3_inv, se3_log, vee
 
 #: Segment lengths (m) of the KITTI odometry benchmark.
 KITTI_LENGTHS = (100, 200, 300, 400, 500, 600, 700, 800)

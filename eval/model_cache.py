@@ -29,11 +29,11 @@ from typing import Callable
 
 import numpy as np
 
-from ekf.config import FilterConfig
-from ekf.errors import InputError
-from ekf.model import Model
-from ekf.sequence import Sequence
-from graph.settings import SmootherSettings
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.errors import InputError
+from vislam.ekf.model import Model
+from vislam.ekf.sequence import Sequence
+from vislam.graph.settings import SmootherSettings
 
 log = logging.getLogger(__name__)
 
@@ -125,7 +125,7 @@ def _read(key: str, folder: Path) -> tuple[Model, dict] | None:
 
 
 def _write(key: str, folder: Path, model: Model, report: dict) -> Path | None:
-    from eval.atomic import write_json, write_text
+    from vislam.eval.atomic import write_json, write_text
 
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -145,8 +145,8 @@ def identified_model(seq: Sequence, config: FilterConfig = FilterConfig(),
                      on_miss: Callable[[], None] | None = None) -> IdentifiedModel:
     """The identified model of ``seq`` (from the cache when it holds it); ``on_miss()`` is
     called before an identification runs (the cache does not hold it)."""
-    from ekf.config import VELOCITY_PAIRINGS
-    from graph.identification import identify_model
+    from vislam.ekf.config import VELOCITY_PAIRINGS
+    from vislam.graph.identification import identify_model
 
     pairings = tuple(VELOCITY_PAIRINGS if pairings is None else pairings)
     settings = settings.replace(compute_marginals=False)

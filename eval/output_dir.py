@@ -33,9 +33,9 @@ import tempfile
 from pathlib import Path
 from typing import Iterable, Iterator
 
-from ekf.errors import InputError
-from eval.atomic import usual_modes, write_text
-from eval.signals import deferred
+from vislam.ekf.errors import InputError
+from vislam.eval.atomic import usual_modes, write_text
+from vislam.eval.signals import deferred
 
 log = logging.getLogger(__name__)
 

@@ -27,9 +27,9 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import LogFormatter
-from ekf.estimate import Estimate
-from eval.atomic import write_bytes
-from eval.consistency import chi2_bounds
+from vislam.ekf.estimate import Estimate
+from vislam.eval.atomic import write_bytes
+from vislam.eval.consistency import chi2_bounds
 
 #: Per estimator: colour, line style, line width, marker and drawing order (zorder), stable
 #: across figures. Pairs that often draw the same curve (dead-reckoning / mapping, ekf-joint /
@@ -292,7 +292,7 @@ def plot_vs_smoother(path, ekfs: Mapping[str, Estimate], smoother: Estimate, tit
     The y range follows the deviation and the band: a band with no visible width (under
     :data:`_BAND_VISIBLE` of the axis) is not drawn, and a band that dwarfs the deviation
     (:data:`_BAND_DWARFS`) is clipped to the deviation's range; a note in the panel says so."""
-    from eval.consistency import position_deviation
+    from vislam.eval.consistency import position_deviation
 
     names = list(ekfs)
     ncol = max(len(names), 1)

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from typing import Callable, Protocol
 
-from ekf.errors import InputError
-from graph.settings import SmootherSettings
+from vislam.ekf.errors import InputError
+from vislam.graph.settings import SmootherSettings
 
 #: Every estimator, in the order tables and plots list them.
 ESTIMATOR_NAMES: tuple[str, ...] = (
@@ -56,7 +56,7 @@ def get_estimator(name: str) -> Callable:
 
 def _lookup(name: str) -> Callable:
     if name in _EKF_NAMES:
-        from ekf.estimators import ESTIMATORS
+        from vislam.ekf.estimators import ESTIMATORS
 
         fn = ESTIMATORS[name]
 
@@ -65,7 +65,7 @@ def _lookup(name: str) -> Callable:
 
         return run_ekf
     if name == "smoother":
-        from graph.smoother import run_smoother
+        from vislam.graph.smoother import run_smoother
 
         def run_batch(seq, config, progress=None, initial=None, smoother=None):
             settings = smoother if smoother is not None else SmootherSettings()
@@ -73,7 +73,7 @@ def _lookup(name: str) -> Callable:
 
         return run_batch
     if name == "smoother-isam2":
-        from graph.isam2 import run_isam2
+        from vislam.graph.isam2 import run_isam2
 
         def run_incremental(seq, config, progress=None, initial=None, smoother=None):
             settings = smoother if smoother is not None else SmootherSettings()

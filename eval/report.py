@@ -51,7 +51,7 @@ def _img(path: Path) -> str:
 def report_html(results: dict, folder: Path) -> str:
     """The page for ``results`` (results.json's content) whose drive folders (with their PNG
     figures) are in ``folder``."""
-    from eval.benchmark import _model_line, readings, sequence_table
+    from vislam.eval.benchmark import _model_line, readings, sequence_table
 
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
              "<title>vislam benchmark</title>", f"<style>{_STYLE}</style>",

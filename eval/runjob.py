@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ekf.config import (
+from vislam.ekf.config import (
     FILTER_RULES,
     LANDMARK_PARAMETERISATIONS,
     VELOCITY_PAIRINGS,
@@ -25,9 +25,9 @@ from ekf.config import (
     settings_tables,
     show_path,
 )
-from ekf.errors import InputError
-from ekf.estimate import Estimate
-from graph.settings import GAP_PRIOR_MODES, INITIALISERS, SMOOTHER_RULES, SmootherSettings
+from vislam.ekf.errors import InputError
+from vislam.ekf.estimate import Estimate
+from vislam.graph.settings import GAP_PRIOR_MODES, INITIALISERS, SMOOTHER_RULES, SmootherSettings
 
 log = logging.getLogger(__name__)
 
@@ -160,13 +160,13 @@ def model_from_args(args: argparse.Namespace):
     path = getattr(args, "config", None)
     if path is None:
         return None
-    from ekf.model import model_from_settings
+    from vislam.ekf.model import model_from_settings
 
     return model_from_settings(path)
 
 
 def _model_from_tables(path, tables):
-    from ekf.model import Model
+    from vislam.ekf.model import Model
 
     (model, source), (file, file_source) = tables["model"], tables["file"]
     if model is None:
@@ -178,7 +178,7 @@ def _model_from_tables(path, tables):
 
 def _merge_model(path, filter_table: dict, config: FilterConfig, model) -> FilterConfig:
     """``config`` with the model's noise model; a [filter] key the model sets is an error."""
-    from ekf.model import MODEL_CONFIG_FIELDS, model_config
+    from vislam.ekf.model import MODEL_CONFIG_FIELDS, model_config
 
     fields = list(MODEL_CONFIG_FIELDS) + (["gyro_bias"] if model.gyro_bias is None else [])
     both = [k for k in fields if k in filter_table]
@@ -280,14 +280,14 @@ def run_estimator(
 ) -> JobResult:
     """Run estimator ``name`` on ``seq`` and time it (wall clock, seconds); ``smoother`` the
     smoothers' settings (defaults when None; the EKFs ignore them)."""
-    from eval.registry import get_estimator
+    from vislam.eval.registry import get_estimator
 
     fn = get_estimator(name)
     t0 = time.perf_counter()
     est = fn(seq, config, progress=progress, initial=initial, smoother=smoother)
     wall = time.perf_counter() - t0
     if est.n_frames != seq.n_frames:
-        from ekf.errors import EstimationError
+        from vislam.ekf.errors import EstimationError
 
         raise EstimationError(
             f"estimator {name!r} returned {est.n_frames} poses for {seq.n_frames} frames"
@@ -318,8 +318,8 @@ def trajectory_scores(est: Estimate, gt) -> dict:
     }
     if gt is None:
         return out
-    from eval.consistency import ate_or_none, pose_nees
-    from eval.metrics import kitti_drift
+    from vislam.eval.consistency import ate_or_none, pose_nees
+    from vislam.eval.metrics import kitti_drift
 
     frames = np.asarray(gt.frames, dtype=np.int64)
     keep = (frames >= 0) & (frames < est.n_frames)
@@ -374,8 +374,8 @@ def write_map_npz(path: Path, est: Estimate) -> None:
 
 def write_run_outputs(out_dir: Path, seq, est: Estimate, metrics: dict, settings: dict) -> None:
     """trajectory.tum, trajectory.kitti, map.npz, estimate.npz, metrics.json, settings.json."""
-    from eval.atomic import write_json
-    from eval.export import write_kitti, write_tum
+    from vislam.eval.atomic import write_json
+    from vislam.eval.export import write_kitti, write_tum
 
     out_dir = Path(out_dir)
     write_tum(out_dir / "trajectory.tum", est.timestamps, est.poses)

@@ -78,11 +78,11 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from ekf.camera import project
-from ekf.errors import InputError
-from ekf.geometry import homogeneous, se3_exp, se3_inv, so3_exp
-from ekf.sequence import Calibration, Observations, Sequence
-from eval.export import FLOAT_FORMAT, atomic_write, save_npz_reproducible
+from vislam.ekf.camera import project
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import homogeneous, se3_exp, se3_inv, so3_exp
+from vislam.ekf.sequence import Calibration, Observations, Sequence
+from vislam.eval.export import FLOAT_FORMAT, atomic_write, save_npz_reproducible
 
 log = logging.getLogger(__name__)
 
@@ -323,8 +323,8 @@ def file_extrinsic(config: SimConfig, true_cam_T_imu: np.ndarray) -> np.ndarray:
 
 def true_model(result: SimResult):
     """The true model of a simulated drive (see :attr:`SimResult.model`)."""
-    from ekf.config import SIGMA_MIN, per_axis
-    from ekf.model import Model
+    from vislam.ekf.config import SIGMA_MIN, per_axis
+    from vislam.ekf.model import Model
 
     config = result.config
 

@@ -67,9 +67,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
-from ekf.config import FilterConfig
-from ekf.conventions import estimate_cov_to_gtsam
-from ekf.errors import InputError
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.conventions import estimate_cov_to_gtsam
+from vislam.ekf.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -267,10 +267,10 @@ def interval_residuals(solution, config: FilterConfig) -> tuple[np.ndarray, np.n
     covariance under the model ``W - C Sigma C^T`` (n, 6, 6) and ``W`` (6, 6), all in GTSAM's
     rotation-first order; ``solution`` a :class:`graph.smoother.SmootherSolution` solved with
     ``config`` (:func:`graph.identification.motion_residuals`, as EM's E-step)."""
-    from graph.factors import fix_bias
-    from graph.gyro_bias import corrected_deltas
-    from graph.identification import motion_residuals
-    from graph.marginals import pose_chain_covariances
+    from vislam.graph.factors import fix_bias
+    from vislam.graph.gyro_bias import corrected_deltas
+    from vislam.graph.identification import motion_residuals
+    from vislam.graph.marginals import pose_chain_covariances
 
     problem, values = solution.problem, solution.values
     graph, deltas = problem.graph, solution.deltas
@@ -352,7 +352,7 @@ def velocity_check(solution, config: FilterConfig, *, stretch_s: float = 10.0,
                          f"seconds, got {stretch_s!r}")
     if not (np.isfinite(level) and 0.0 < level < 1.0):
         raise InputError(f"velocity check: level must be between 0 and 1, got {level!r}")
-    from graph.factors import unconstrained_intervals
+    from vislam.graph.factors import unconstrained_intervals
 
     w, R, W = interval_residuals(solution, config)
     terms = _interval_terms(w, R, W, MIN_VARIANCE_FRACTION)

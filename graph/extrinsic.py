@@ -38,11 +38,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ekf.geometry import hat, se3_inv, so3_exp
-from ekf.model import EXTRINSIC_COMPONENTS
-from ekf.errors import EstimationError
-from graph.marginals import whitened_system
-from graph.pose_conversions import X, estimation_error, to_pose3
+from vislam.ekf.geometry import hat, se3_inv, so3_exp
+from vislam.ekf.model import EXTRINSIC_COMPONENTS
+from vislam.ekf.errors import EstimationError
+from vislam.graph.marginals import whitened_system
+from vislam.graph.pose_conversions import X, estimation_error, to_pose3
 
 #: Standard deviation of the weak prior around the current value, per component of theta
 #: (m, m, m, rad, rad, rad): it only keeps an unobservable direction finite.
@@ -164,7 +164,7 @@ def extrinsic_step(solution, cam_T_imu: np.ndarray) -> ExtrinsicStep:
 
 def theta_between(cam_T_imu: np.ndarray, other: np.ndarray) -> np.ndarray:
     """The ``theta`` that moves ``cam_T_imu`` to ``other`` (:func:`perturb_cam_T_imu`)."""
-    from ekf.geometry import so3_log
+    from vislam.ekf.geometry import so3_log
 
     C, F = np.asarray(cam_T_imu, dtype=float), np.asarray(other, dtype=float)
     return np.r_[F[:3, 3] - C[:3, 3], so3_log(F[:3, :3] @ C[:3, :3].T)]

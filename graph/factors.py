@@ -23,15 +23,15 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from ekf.camera import triangulate_with_jacobian
-from ekf.config import FilterConfig
-from ekf.conventions import estimate_cov_to_gtsam
-from ekf.geometry import se3_exp, se3_inv
-from ekf.sequence import Calibration, Sequence
-from graph.gyro_bias import BIAS_KEY, GyroBiasModel, biased_motion_factor, corrected_deltas
-from graph.pose_conversions import L, X, expmap_right_jacobian, to_pose3, twist_to_gtsam
-from graph.settings import SmootherSettings
-from graph.twist_smoothness import add_smoothness_factors
+from vislam.ekf.camera import triangulate_with_jacobian
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.conventions import estimate_cov_to_gtsam
+from vislam.ekf.geometry import se3_exp, se3_inv
+from vislam.ekf.sequence import Calibration, Sequence
+from vislam.graph.gyro_bias import BIAS_KEY, GyroBiasModel, biased_motion_factor, corrected_deltas
+from vislam.graph.pose_conversions import L, X, expmap_right_jacobian, to_pose3, twist_to_gtsam
+from vislam.graph.settings import SmootherSettings
+from vislam.graph.twist_smoothness import add_smoothness_factors
 
 
 @dataclass

@@ -36,7 +36,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B
 
-from graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
+from vislam.graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
 
 log = logging.getLogger(__name__)
 

@@ -61,13 +61,13 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
-from ekf.config import VELOCITY_PAIRINGS, FilterConfig
-from ekf.conventions import estimate_cov_to_gtsam
-from ekf.errors import EstimationError
-from ekf.model import interval_sigma_factor, with_extrinsic
-from ekf.sequence import Sequence
-from graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
-from graph.settings import SmootherSettings
+from vislam.ekf.config import VELOCITY_PAIRINGS, FilterConfig
+from vislam.ekf.conventions import estimate_cov_to_gtsam
+from vislam.ekf.errors import EstimationError
+from vislam.ekf.model import interval_sigma_factor, with_extrinsic
+from vislam.ekf.sequence import Sequence
+from vislam.graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
+from vislam.graph.settings import SmootherSettings
 
 log = logging.getLogger(__name__)
 
@@ -146,7 +146,7 @@ class ModelFit:
 
     def to_model(self, source: str):
         """The :class:`ekf.model.Model` (per-sample sigmas; the file's extrinsic under [file])."""
-        from ekf.model import EXTRINSIC_COMPONENTS, Model
+        from vislam.ekf.model import EXTRINSIC_COMPONENTS, Model
 
         sigma = None if self.cam_T_imu_cov is None else tuple(
             float(x) for x in np.sqrt(np.diag(self.cam_T_imu_cov)))
@@ -193,8 +193,8 @@ def motion_residuals(poses: np.ndarray, deltas: np.ndarray, twist: np.ndarray, t
 def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
     """The E-step: expected squared residuals of the motion and stereo factors of a solved
     smoother (:class:`graph.smoother.SmootherSolution`) and the Laplace likelihood terms."""
-    from graph.factors import stereo_residuals
-    from graph.marginals import pose_chain_covariances
+    from vislam.graph.factors import stereo_residuals
+    from vislam.graph.marginals import pose_chain_covariances
 
     problem, values = solution.problem, solution.values
     T = solution.poses.shape[0]
@@ -291,8 +291,8 @@ def em_noise(seq: Sequence, config: FilterConfig, settings: SmootherSettings, *,
     is maximised conditionally, the noise levels by their M-step). ``cam_T_imu`` the
     extrinsic to start from (default the file's); ``warm_start`` a solution of the same drive
     under a nearby model (:func:`graph.smoother.solve_smoother`)."""
-    from graph.extrinsic import extrinsic_step, perturb_cam_T_imu
-    from graph.smoother import solve_smoother
+    from vislam.graph.extrinsic import extrinsic_step, perturb_cam_T_imu
+    from vislam.graph.smoother import solve_smoother
 
     start = seq.calibration.cam_T_imu if cam_T_imu is None else cam_T_imu
     state = {"solution": warm_start, "steps": 0, "cam_T_imu": np.array(start, dtype=float),
@@ -369,7 +369,7 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     likelihood-ratio supports it (BIC) and (``extrinsic``) the camera-IMU extrinsic with its
     covariance. ``config`` gives the starting point and every other filter setting;
     ``settings`` the smoother's."""
-    from graph.smoother import solve_smoother
+    from vislam.graph.smoother import solve_smoother
 
     t0 = time.perf_counter()
     if seq.n_frames < 3:
@@ -415,7 +415,7 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     # poorly determined component moved by a sigma or two costs accuracy and buys nothing.
     extrinsic_test: dict = {}
     if em.extrinsic is not None:
-        from graph.extrinsic import mahalanobis, theta_between
+        from vislam.graph.extrinsic import mahalanobis, theta_between
 
         file_T = np.array(seq.calibration.cam_T_imu)
         d2, k = mahalanobis(theta_between(em.cam_T_imu, file_T), em.extrinsic.covariance,

@@ -19,11 +19,11 @@ from typing import Callable
 import gtsam
 import numpy as np
 
-from ekf.config import FilterConfig
-from ekf.errors import EstimationError
-from ekf.estimate import Estimate
-from ekf.sequence import Sequence
-from graph.factors import (
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.errors import EstimationError
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.sequence import Sequence
+from vislam.graph.factors import (
     NoiseModels,
     StereoRows,
     camera_points,
@@ -35,12 +35,12 @@ from graph.factors import (
     unconstrained_intervals,
     usable_rows,
 )
-from ekf.numerics import NumericalGuard
-from ekf.runner import finish_estimate, prepare_sequence
-from graph.marginals import isam2_marginals
-from graph.pose_conversions import L, X, estimation_error, named_error, to_pose3
-from graph.settings import SmootherSettings
-from graph.twist_smoothness import gap_prior, smoothness_sigma
+from vislam.ekf.numerics import NumericalGuard
+from vislam.ekf.runner import finish_estimate, prepare_sequence
+from vislam.graph.marginals import isam2_marginals
+from vislam.graph.pose_conversions import L, X, estimation_error, named_error, to_pose3
+from vislam.graph.settings import SmootherSettings
+from vislam.graph.twist_smoothness import gap_prior, smoothness_sigma
 
 log = logging.getLogger(__name__)
 

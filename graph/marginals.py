@@ -31,9 +31,9 @@ import scipy.linalg
 import scipy.sparse as sp
 from threadpoolctl import threadpool_limits
 
-from ekf.conventions import gtsam_cov_to_estimate
-from ekf.errors import EstimationError
-from graph.pose_conversions import L, X, estimation_error, key_name
+from vislam.ekf.conventions import gtsam_cov_to_estimate
+from vislam.ekf.errors import EstimationError
+from vislam.graph.pose_conversions import L, X, estimation_error, key_name
 
 
 @dataclass

@@ -14,8 +14,8 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from ekf.conventions import ESTIMATE_TO_GTSAM
-from ekf.errors import EstimationError
+from vislam.ekf.conventions import ESTIMATE_TO_GTSAM
+from vislam.ekf.errors import EstimationError
 
 __all__ = [
     "L",

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
-from ekf.config import Rule, check_mapping, check_settings, settings_tables
-from ekf.errors import InputError
+from vislam.ekf.config import Rule, check_mapping, check_settings, settings_tables
+from vislam.ekf.errors import InputError
 
 #: Where the batch smoother's initial trajectory comes from.
 INITIALISERS = ("ekf", "dead-reckoning", "isam2")

@@ -35,12 +35,12 @@ from typing import Callable
 import gtsam
 import numpy as np
 
-from ekf.config import FilterConfig
-from ekf.conventions import estimate_cov_to_gtsam
-from ekf.errors import EstimationError, InputError
-from ekf.estimate import Estimate
-from ekf.sequence import Sequence
-from graph.factors import (
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.conventions import estimate_cov_to_gtsam
+from vislam.ekf.errors import EstimationError, InputError
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.sequence import Sequence
+from vislam.graph.factors import (
     GraphProblem,
     NoiseModels,
     TwistSmoothness,
@@ -59,13 +59,13 @@ from graph.factors import (
     unconstrained_intervals,
     usable_rows,
 )
-from graph.gyro_bias import BIAS_KEY, GyroBiasModel, corrected_deltas, estimate_bias
-from ekf.numerics import NumericalGuard
-from ekf.runner import finish_estimate, prepare_sequence
-from graph.marginals import batch_marginals
-from graph.pose_conversions import estimation_error, named_error
-from graph.settings import INITIALISERS, SmootherSettings
-from graph.twist_smoothness import smoothness_sigma
+from vislam.graph.gyro_bias import BIAS_KEY, GyroBiasModel, corrected_deltas, estimate_bias
+from vislam.ekf.numerics import NumericalGuard
+from vislam.ekf.runner import finish_estimate, prepare_sequence
+from vislam.graph.marginals import batch_marginals
+from vislam.graph.pose_conversions import estimation_error, named_error
+from vislam.graph.settings import INITIALISERS, SmootherSettings
+from vislam.graph.twist_smoothness import smoothness_sigma
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +79,7 @@ def ekf_trajectory(seq: Sequence, config: FilterConfig) -> tuple[np.ndarray | No
     """Poses from the best EKF available (``ekf.estimators.ESTIMATORS``), or None.
 
     An EKF that fails (EstimationError) is logged and the next one tried."""
-    from ekf.estimators import ESTIMATORS
+    from vislam.ekf.estimators import ESTIMATORS
 
     failed = []
     for name in EKF_INITIALISERS:
@@ -116,7 +116,7 @@ def initial_trajectory(seq: Sequence, cleaned: Sequence, config: FilterConfig, i
         log.warning("smoother: no EKF to initialise from (%s); using dead reckoning", source)
         return _finite_dead_reckoning(cleaned, config), "dead-reckoning (EKF unavailable)"
     if init == "isam2":
-        from graph.isam2 import isam2_solve
+        from vislam.graph.isam2 import isam2_solve
 
         return isam2_solve(cleaned, config, settings).poses, "isam2"
     return _finite_dead_reckoning(cleaned, config), "dead-reckoning"

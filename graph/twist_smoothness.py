@@ -33,7 +33,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from graph.pose_conversions import X, to_pose3
+from vislam.graph.pose_conversions import X, to_pose3
 
 #: Floor on the measured sigma (rad/s for rotation, m/s for translation), so that a perfectly
 #: smooth (e.g. simulated constant-velocity) drive does not produce a rigid constraint.

@@ -24,8 +24,8 @@ settings.register_profile(
 )
 settings.load_profile("vislam")
 
-from eval.datasets import DATA_ENV, SHARED_DRIVES, data_dir as _data_dir
-from eval.datasets import drive_path as _drive_path
+from vislam.eval.datasets import DATA_ENV, SHARED_DRIVES, data_dir as _data_dir
+from vislam.eval.datasets import drive_path as _drive_path
 
 
 def pytest_configure(config):
@@ -66,7 +66,7 @@ def drive_path(data_dir):
 @pytest.fixture(scope="session")
 def load_drive(drive_path):
     """Factory: ``load_drive("0027")`` -> the loaded Sequence, read once per session."""
-    from eval.loader import load_sequence
+    from vislam.eval.loader import load_sequence
 
     cache: dict[str, object] = {}
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ekf.sequence import Sequence
+from vislam.ekf.sequence import Sequence
 
 
 def assert_same_sequence(a: Sequence, b: Sequence, name=True):

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ekf.config import FilterConfig
-from eval import benchmark
-from eval.cli import main
+from vislam.ekf.config import FilterConfig
+from vislam.eval import benchmark
+from vislam.eval.cli import main
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 FAST = "dead-reckoning,ekf-joint,smoother"
@@ -107,9 +107,8 @@ def test_bench_bad_input_exits_2_and_writes_nothing(tmp_path, capsys):
 
 
 def test_failed_estimator_is_recorded_with_null_figures(tmp_path, monkeypatch):
-    from ekf.errors import EstimationError
-    import eval.registry as registry
-
+    from vislam.ekf.errors import EstimationError
+    import vislam.eval.registry as registry
     real = registry.get_estimator
 
     def fake(name):
@@ -132,7 +131,7 @@ def test_failed_estimator_is_recorded_with_null_figures(tmp_path, monkeypatch):
 
 
 def test_redrawn_noise_keeps_the_drive_and_changes_the_noise():
-    from eval.simulate import SimConfig, simulate
+    from vislam.eval.simulate import SimConfig, simulate
 
     cfg = SimConfig(seed=3, n_frames=40)
     truth = simulate(SimConfig(seed=3, n_frames=40, noise_free=True))
@@ -168,7 +167,7 @@ def test_nees_command_writes_json_and_plot(tmp_path, capsys):
 
 
 def test_bench_on_a_folder_of_files_finds_ground_truth_and_landmarks(tmp_path):
-    from eval.simulate import SimConfig, simulate, write_simulation
+    from vislam.eval.simulate import SimConfig, simulate, write_simulation
 
     data = tmp_path / "data"
     for seed in (1, 2):
@@ -189,7 +188,7 @@ def test_bench_on_a_folder_of_files_finds_ground_truth_and_landmarks(tmp_path):
 
 
 def test_bench_hostile_landmark_file_is_one_line_exit_2(tmp_path, capsys):
-    from eval.simulate import SimConfig, simulate, write_simulation
+    from vislam.eval.simulate import SimConfig, simulate, write_simulation
 
     data = tmp_path / "data"
     write_simulation(simulate(SimConfig(seed=1, n_frames=20, name="s1")), data)
@@ -203,7 +202,7 @@ def test_bench_hostile_landmark_file_is_one_line_exit_2(tmp_path, capsys):
 def test_bench_identifies_the_model_by_default_caches_it_and_records_it(tmp_path, monkeypatch):
     import json
 
-    from eval.cli import main
+    from vislam.eval.cli import main
 
     model_cache = tmp_path / "cache"  # this test's own: the first run must identify
     monkeypatch.setenv("VISLAM_CACHE_DIR", str(model_cache))
@@ -235,7 +234,7 @@ def test_bench_identifies_the_model_by_default_caches_it_and_records_it(tmp_path
 def test_bench_falls_back_to_as_given_when_the_model_cannot_be_identified(tmp_path, caplog):
     import json
 
-    from eval.cli import main
+    from vislam.eval.cli import main
 
     out = tmp_path / "o"
     assert main(["bench", "--frames", "2", "-e", "dead-reckoning", "-j", "1", "-q",

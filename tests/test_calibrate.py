@@ -7,12 +7,12 @@ import gtsam
 import numpy as np
 import pytest
 
-from ekf.config import FilterConfig
-from ekf.model import Model
-from eval.cli import main
-from eval.simulate import SimConfig, simulate
-from graph.identification import identify_model
-from graph.settings import SmootherSettings
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.model import Model
+from vislam.eval.cli import main
+from vislam.eval.simulate import SimConfig, simulate
+from vislam.graph.identification import identify_model
+from vislam.graph.settings import SmootherSettings
 
 SETTINGS = SmootherSettings(compute_marginals=False)
 BIAS = (0.005, -0.005, 0.007)
@@ -65,8 +65,8 @@ def test_the_pairing_the_data_was_made_with_explains_it_with_the_least_noise(mad
 
 
 def test_consecutive_pose_covariances_match_gtsam_marginals():
-    from graph.marginals import pose_chain_covariances
-    from graph.pose_conversions import X
+    from vislam.graph.marginals import pose_chain_covariances
+    from vislam.graph.pose_conversions import X
 
     rng = np.random.default_rng(0)
     graph = gtsam.NonlinearFactorGraph()

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ekf import camera
+from vislam.ekf import camera
 from tests.numdiff import numeric_jacobian
 
 K = np.array([[707.0912, 0.0, 601.8873], [0.0, 707.0912, 183.1104], [0.0, 0.0, 1.0]])

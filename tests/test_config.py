@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from ekf.config import FilterConfig
-from ekf.errors import InputError
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.errors import InputError
 
 
 def test_defaults_are_valid_and_matrices_full_rank():
@@ -51,7 +51,7 @@ def test_toml(tmp_path):
 
 
 def test_toml_leaves_the_smoother_table_to_the_smoother(tmp_path):
-    from graph.settings import SmootherSettings
+    from vislam.graph.settings import SmootherSettings
 
     p = tmp_path / "s.toml"
     p.write_text('pixel_sigma = 2.0\n[smoother]\ninit = "isam2"\n')
@@ -70,9 +70,9 @@ import argparse  # noqa: E402
 import math  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from ekf.config import FILTER_RULES, MAX_SETTINGS_BYTES  # noqa: E402
-from eval.runjob import add_filter_arguments, filter_config_from_args, smoother_settings_from_args  # noqa: E402
-from graph.settings import SMOOTHER_RULES, SmootherSettings  # noqa: E402
+from vislam.ekf.config import FILTER_RULES, MAX_SETTINGS_BYTES  # noqa: E402
+from vislam.eval.runjob import add_filter_arguments, filter_config_from_args, smoother_settings_from_args  # noqa: E402
+from vislam.graph.settings import SMOOTHER_RULES, SmootherSettings  # noqa: E402
 
 
 def _args(*argv: str) -> argparse.Namespace:
@@ -291,7 +291,7 @@ def test_every_field_has_a_rule_and_the_defaults_follow_it():
 
 @pytest.fixture(scope="module")
 def sim_file(tmp_path_factory):
-    from eval.simulate import SimConfig, simulate, write_simulation
+    from vislam.eval.simulate import SimConfig, simulate, write_simulation
 
     folder = tmp_path_factory.mktemp("sim")
     return write_simulation(simulate(SimConfig(seed=4, n_frames=30, name="short")), folder)["data"]
@@ -303,7 +303,7 @@ def sim_file(tmp_path_factory):
      b"[filter]\npixel_sigma = -1\n", None],
 )
 def test_cli_bad_config_exits_2_with_one_line_and_writes_nothing(sim_file, tmp_path, capsys, content):
-    from eval.cli import main
+    from vislam.eval.cli import main
 
     bad = tmp_path / "bad.toml"
     if content is None:

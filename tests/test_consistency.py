@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from ekf.estimate import Estimate
-from ekf.geometry import se3_exp, so3_exp
-from eval import consistency as C
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.geometry import se3_exp, so3_exp
+from vislam.eval import consistency as C
 
 
 def test_chi2_bounds_single_and_many_runs():
@@ -124,7 +124,7 @@ def test_position_deviation_rotates_the_covariance_to_the_world():
 
 
 def test_reference_honesty_sentence():
-    from eval.consistency import POSE_NEES_BAND, reference_honesty
+    from vislam.eval.consistency import POSE_NEES_BAND, reference_honesty
 
     np.testing.assert_allclose(POSE_NEES_BAND, chi2.ppf([0.025, 0.975], 6), atol=1e-3)
     assert reference_honesty("smoother", 6.0) is None and reference_honesty("smoother", None) is None

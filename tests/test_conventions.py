@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from ekf import conventions as c
-from ekf import geometry as g
+from vislam.ekf import conventions as c
+from vislam.ekf import geometry as g
 from tests.test_geometry import random_poses
 
 RNG = np.random.default_rng(5)

@@ -11,7 +11,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from ekf.conventions import (
+from vislam.ekf.conventions import (
     EKF_TO_GTSAM,
     ESTIMATE_TO_GTSAM,
     convert_joint_pose_block,
@@ -20,10 +20,10 @@ from ekf.conventions import (
     gtsam_cov_to_ekf,
     gtsam_cov_to_estimate,
 )
-from ekf.geometry import se3_exp, se3_inv
-from graph.factors import relative_motions
-from graph.marginals import gtsam_marginals, schur_marginals
-from graph.pose_conversions import L, X, expmap_right_jacobian, from_pose3, to_pose3, twist_to_gtsam
+from vislam.ekf.geometry import se3_exp, se3_inv
+from vislam.graph.factors import relative_motions
+from vislam.graph.marginals import gtsam_marginals, schur_marginals
+from vislam.graph.pose_conversions import L, X, expmap_right_jacobian, from_pose3, to_pose3, twist_to_gtsam
 
 
 def random_pose(rng: np.random.Generator) -> np.ndarray:
@@ -88,8 +88,8 @@ def test_covariance_conversions_monte_carlo():
 def test_joint_pose_landmark_block_against_gtsam():
     """GTSAM's joint [pose, landmark] marginal of a small stereo graph, converted to the Estimate
     and EKF conventions, matches samples pushed through the definitions of each convention."""
-    from ekf.conventions import EKF_TO_ESTIMATE
-    from ekf.geometry import se3_log
+    from vislam.ekf.conventions import EKF_TO_ESTIMATE
+    from vislam.ekf.geometry import se3_log
 
     rng = np.random.default_rng(3)
     T = random_pose(rng)
@@ -152,8 +152,8 @@ def test_expmap_right_jacobian_matches_finite_differences():
 
 def test_motion_covariance_monte_carlo():
     """Twist noise W over tau gives the relative-pose covariance used by the BetweenFactor."""
-    from ekf.config import FilterConfig
-    from ekf.sequence import Calibration, Observations, Sequence
+    from vislam.ekf.config import FilterConfig
+    from vislam.ekf.sequence import Calibration, Observations, Sequence
 
     rng = np.random.default_rng(2)
     u = np.array([[8.0, 0.3, -0.1, 0.05, -0.02, 0.4]] * 2)

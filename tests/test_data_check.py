@@ -6,19 +6,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ekf.config import FilterConfig
-from ekf.model import apply_model, model_config
-from eval.cli import main
-from eval.simulate import SimConfig, simulate, write_simulation
-from graph.data_check import (
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.model import apply_model, model_config
+from vislam.eval.cli import main
+from vislam.eval.simulate import SimConfig, simulate, write_simulation
+from vislam.graph.data_check import (
     MIN_VARIANCE_FRACTION,
     _threshold,
     interval_residuals,
     stretch_labels,
     velocity_check,
 )
-from graph.settings import SmootherSettings
-from graph.smoother import solve_smoother
+from vislam.graph.settings import SmootherSettings
+from vislam.graph.smoother import solve_smoother
 
 SETTINGS = SmootherSettings(compute_marginals=False)
 #: Velocity noise per sample of the drives (m/s). At the shared data's 0.5 m/s a lever arm
@@ -109,7 +109,7 @@ def test_intervals_without_vision_are_left_out_not_nan():
                                 repeat_event_rate=0.05))
     check, solution, config = check_under(result, settings=SETTINGS.replace(gap_twist_prior="off"))
     w, R, W = interval_residuals(solution, config)
-    from graph.factors import unconstrained_intervals
+    from vislam.graph.factors import unconstrained_intervals
 
     gaps = unconstrained_intervals(solution.problem.rows, solution.poses.shape[0])
     assert gaps.sum() >= 2
@@ -142,7 +142,7 @@ def test_stretches_and_thresholds():
 
 
 def test_bad_arguments(kitti_drive):
-    from ekf.errors import InputError
+    from vislam.ekf.errors import InputError
 
     for kwargs in ({"stretch_s": 0.0}, {"stretch_s": float("nan")}, {"level": 1.0}):
         with pytest.raises(InputError):

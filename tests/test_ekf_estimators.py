@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from ekf.config import FilterConfig
-from ekf.estimators import ESTIMATORS
-from ekf.joint import JointState
-from ekf.stereo_update import StereoModel
-from eval.simulate import SimConfig, simulate
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.estimators import ESTIMATORS
+from vislam.ekf.joint import JointState
+from vislam.ekf.stereo_update import StereoModel
+from vislam.eval.simulate import SimConfig, simulate
 
 CORE_MODES = ["dead-reckoning", "mapping", "ekf-decoupled", "ekf-joint"]
 SLAM_MODES = ["ekf-decoupled", "ekf-joint"]
@@ -55,7 +55,7 @@ def test_noisy_slam_beats_dead_reckoning(noisy_sim):
     seq = noisy_sim.sequence
     dr = _ate(ESTIMATORS["dead-reckoning"](seq, BASE), noisy_sim.poses)
     dec = _ate(ESTIMATORS["ekf-decoupled"](seq, BASE), noisy_sim.poses)
-    from ekf.decoupled import run_decoupled
+    from vislam.ekf.decoupled import run_decoupled
 
     assert _ate(run_decoupled(seq, BASE, as_written=True), noisy_sim.poses) < dr
     joint = _ate(ESTIMATORS["ekf-joint"](seq, BASE), noisy_sim.poses)
@@ -68,7 +68,7 @@ def test_marginalisation_is_exact(noisy_sim):
     """Deleting ended tracks from the state gives the same poses as keeping them (the kept
     landmarks go on being refined through their correlation with the pose, so only their
     presence is compared)."""
-    from ekf.sequence import Observations, Sequence
+    from vislam.ekf.sequence import Observations, Sequence
 
     full = noisy_sim.sequence
     n = 60
@@ -104,8 +104,8 @@ def test_joint_update_matches_dense_kalman_reference(noisy_sim, linearisation):
     """The structured stacked update equals the textbook dense Joseph-form update (followed, for
     the constrained linearisations, by the gauge transport of :func:`ekf.joint.gauge_transport`;
     at the first update the first estimates are the current ones, so FEJ's H is the same)."""
-    from ekf.geometry import se3_exp
-    from ekf.joint import gauge_transport
+    from vislam.ekf.geometry import se3_exp
+    from vislam.ekf.joint import gauge_transport
 
     seq = noisy_sim.sequence
     cfg = BASE.replace(gate_probability=None, joint_linearisation=linearisation, gyro_bias=False,
@@ -147,8 +147,8 @@ def test_joint_update_matches_dense_kalman_reference(noisy_sim, linearisation):
 @pytest.mark.slow
 @pytest.mark.realdata
 def test_0027_slam_beats_dead_reckoning(drive_path, load_drive):
-    from eval.groundtruth import find_ground_truth
-    from eval.metrics import ate_rmse
+    from vislam.eval.groundtruth import find_ground_truth
+    from vislam.eval.metrics import ate_rmse
 
     seq = load_drive("0027")
     gt = find_ground_truth(drive_path("0027"))
@@ -169,7 +169,7 @@ def test_constrained_linearisation_removes_most_spurious_information(landmarks):
     the unobservable gauge directions (6 is consistent). Euclidean landmarks, 3 x 150 frames:
     standard 135, FEJ 32, oc 22. Inverse depth: standard 17.4, FEJ 18.5 (43, 5.7, 6.4: FEJ's
     first estimates of far points are poor), oc 4.3."""
-    from eval.consistency import pose_nees
+    from vislam.eval.consistency import pose_nees
 
     anees = {m: [] for m in ("standard", "fej", "oc")}
     for seed in range(3):

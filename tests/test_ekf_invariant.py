@@ -8,12 +8,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from ekf import invariant as inv
-from ekf.camera import project, stereo_matrix, triangulate_with_jacobian
-from ekf.config import FilterConfig
-from ekf.errors import InputError
-from ekf.geometry import homogeneous, se3_exp, se3_inv, se3_log
-from ekf.sequence import Calibration, Observations, Sequence
+from vislam.ekf import invariant as inv
+from vislam.ekf.camera import project, stereo_matrix, triangulate_with_jacobian
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import homogeneous, se3_exp, se3_inv, se3_log
+from vislam.ekf.sequence import Calibration, Observations, Sequence
 from tests.numdiff import numeric_jacobian
 
 K_CAM = np.array([[700.0, 0.0, 610.0], [0.0, 700.0, 180.0], [0.0, 0.0, 1.0]])
@@ -173,7 +173,7 @@ def test_landmark_world_jacobian_against_exact_model():
 
 def test_pose_covariance_conversion_by_monte_carlo():
     """Left world-frame perturbation of T -> Estimate convention (right, translation first)."""
-    from ekf.conventions import left_cov_to_estimate
+    from vislam.ekf.conventions import left_cov_to_estimate
 
     rng = np.random.default_rng(7)
     T = random_pose(rng, scale=20)
@@ -385,6 +385,6 @@ def test_clean_tracks_runs_and_reports_the_cleaned_track_origin():
 
 
 def test_registered_in_the_estimator_registry():
-    from ekf.estimators import ESTIMATORS
+    from vislam.ekf.estimators import ESTIMATORS
 
     assert ESTIMATORS["ekf-invariant"] is inv.run_invariant

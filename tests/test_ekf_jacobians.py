@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from ekf.camera import stereo_matrix
-from ekf.geometry import se3_exp, se3_inv, se3_log
-from ekf.prediction import (
+from vislam.ekf.camera import stereo_matrix
+from vislam.ekf.geometry import se3_exp, se3_inv, se3_log
+from vislam.ekf.prediction import (
     GYRO_SELECT,
     bias_transition,
     paired_velocities,
@@ -14,8 +14,8 @@ from ekf.prediction import (
     prediction_jacobian,
     se3_left_jacobian,
 )
-from ekf.sequence import Calibration
-from ekf.stereo_update import StereoModel, batched_landmark_update, chi2_gate
+from vislam.ekf.sequence import Calibration
+from vislam.ekf.stereo_update import StereoModel, batched_landmark_update, chi2_gate
 from tests.numdiff import numeric_jacobian
 
 K = np.array([[707.0912, 0.0, 601.8873], [0.0, 707.0912, 183.1104], [0.0, 0.0, 1.0]])
@@ -190,8 +190,8 @@ def test_stereo_matrix_rows_repeat():
 
 
 def test_se3_exp_single_matches_geometry():
-    from ekf.geometry import se3_exp as batched
-    from ekf.prediction import se3_exp_single
+    from vislam.ekf.geometry import se3_exp as batched
+    from vislam.ekf.prediction import se3_exp_single
 
     rng = np.random.default_rng(7)
     for scale in (1e-9, 1e-4, 0.3, 2.0):
@@ -200,8 +200,8 @@ def test_se3_exp_single_matches_geometry():
 
 
 def test_so3_exp_and_left_jacobian_match_geometry():
-    from ekf.geometry import so3_exp, so3_left_jacobian
-    from ekf.prediction import so3_exp_and_left_jacobian
+    from vislam.ekf.geometry import so3_exp, so3_left_jacobian
+    from vislam.ekf.prediction import so3_exp_and_left_jacobian
 
     rng = np.random.default_rng(8)
     for scale in (1e-9, 1e-6, 1e-4, 0.3, 2.0):
@@ -220,7 +220,7 @@ def _gauge(seed=1):
 
 
 def test_gauge_nullspace_is_the_derivative_of_an_invisible_change_of_world():
-    from ekf.joint import gauge_nullspace
+    from vislam.ekf.joint import gauge_nullspace
 
     model = _model()
     U, m = _scene(seed=3)
@@ -242,7 +242,7 @@ def test_gauge_nullspace_is_the_derivative_of_an_invisible_change_of_world():
 
 @pytest.mark.parametrize("reduced", [False, True])
 def test_measurement_jacobians_annihilate_the_nullspace(reduced):
-    from ekf.joint import gauge_nullspace
+    from vislam.ekf.joint import gauge_nullspace
 
     model = _model()
     U, m = _scene(seed=4, n=5)
@@ -258,7 +258,7 @@ def test_measurement_jacobians_annihilate_the_nullspace(reduced):
 
 
 def test_prediction_and_initialisation_map_the_nullspace():
-    from ekf.joint import gauge_nullspace
+    from vislam.ekf.joint import gauge_nullspace
 
     model = _model()
     U, _ = _scene(seed=6)
@@ -278,7 +278,7 @@ def test_prediction_and_initialisation_map_the_nullspace():
 def test_gauge_transport_maps_prior_nullspace_to_posterior(core, with_landmarks):
     """OC-EKF: T N(U-, m-) = N(E U-, m- + dm), so P = N N^T maps to N' N'^T; the pose-only
     transport (FEJ) maps the pose rows and leaves the landmark rows at their first estimates."""
-    from ekf.joint import gauge_nullspace, gauge_transport
+    from vislam.ekf.joint import gauge_nullspace, gauge_transport
 
     U, m = _scene(seed=7, n=4)
     rng = np.random.default_rng(8)

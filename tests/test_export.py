@@ -7,9 +7,9 @@ import zipfile
 import numpy as np
 import pytest
 
-from ekf.errors import InputError
-from ekf.geometry import se3_exp
-from eval.export import (
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import se3_exp
+from vislam.eval.export import (
     atomic_write,
     read_kitti,
     read_tum,

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from ekf.config import FilterConfig
-from ekf.geometry import se3_inv, so3_exp, so3_log
-from ekf.model import EXTRINSIC_COMPONENTS
-from eval.simulate import KITTI_CAM_T_IMU, SimConfig, simulate
-from graph.extrinsic import (
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.geometry import se3_inv, so3_exp, so3_log
+from vislam.ekf.model import EXTRINSIC_COMPONENTS
+from vislam.eval.simulate import KITTI_CAM_T_IMU, SimConfig, simulate
+from vislam.graph.extrinsic import (
     PRIOR_SIGMA,
     UNDETERMINED_SIGMA,
     extrinsic_step,
@@ -25,10 +25,10 @@ from graph.extrinsic import (
     perturb_cam_T_imu,
     theta_between,
 )
-from graph.factors import stereo_residuals
-from graph.identification import identify_model
-from graph.settings import SmootherSettings
-from graph.smoother import solve_smoother
+from vislam.graph.factors import stereo_residuals
+from vislam.graph.identification import identify_model
+from vislam.graph.settings import SmootherSettings
+from vislam.graph.smoother import solve_smoother
 from tests.numdiff import numeric_jacobian
 
 #: A wrong extrinsic in the file: several cm and several mrad off the true one.

@@ -5,7 +5,7 @@ import pytest
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-from ekf import geometry as g
+from vislam.ekf import geometry as g
 from tests.numdiff import numeric_jacobian
 
 RNG = np.random.default_rng(7)

@@ -7,15 +7,15 @@ import gtsam
 import numpy as np
 import pytest
 
-from ekf.config import FilterConfig
-from ekf.geometry import se3_exp
-from eval.metrics import ate_rmse
-from eval.simulate import SimConfig, simulate
-from graph.gyro_bias import (BIAS_KEY, biased_motion_error, biased_motion_factor, bias_jacobians,
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.geometry import se3_exp
+from vislam.eval.metrics import ate_rmse
+from vislam.eval.simulate import SimConfig, simulate
+from vislam.graph.gyro_bias import (BIAS_KEY, biased_motion_error, biased_motion_factor, bias_jacobians,
                              corrected_delta)
-from graph.pose_conversions import X, to_pose3
-from graph.settings import SmootherSettings
-from graph.smoother import run_smoother
+from vislam.graph.pose_conversions import X, to_pose3
+from vislam.graph.settings import SmootherSettings
+from vislam.graph.smoother import run_smoother
 from tests.numdiff import numeric_jacobian
 
 CONFIG = FilterConfig(clean_tracks=False)
@@ -106,7 +106,7 @@ def test_smoother_recovers_a_constant_gyro_bias():
 
 
 def test_gap_intervals():
-    from graph.factors import StereoRows, unconstrained_intervals
+    from vislam.graph.factors import StereoRows, unconstrained_intervals
 
     # track 0 on frames 0-2, track 1 on frames 3-5: the interval [2, 3] has no vision
     rows = StereoRows(np.array([0, 1, 2, 3, 4, 5]), np.array([0, 0, 0, 1, 1, 1]), np.zeros((6, 4)))

@@ -7,18 +7,18 @@ import gtsam
 import numpy as np
 import pytest
 
-from ekf.config import FilterConfig
-from ekf.errors import EstimationError, InputError
-from ekf.sequence import Observations, Sequence
-from eval.metrics import ate_rmse
-from eval.simulate import SimConfig, simulate
-from graph.factors import (NoiseModels, build_graph, keep_multi_observed, relative_motions,
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.errors import EstimationError, InputError
+from vislam.ekf.sequence import Observations, Sequence
+from vislam.eval.metrics import ate_rmse
+from vislam.eval.simulate import SimConfig, simulate
+from vislam.graph.factors import (NoiseModels, build_graph, keep_multi_observed, relative_motions,
                            triangulate_landmarks, usable_rows)
-from graph.isam2 import run_isam2
-from graph.marginals import gtsam_marginals, schur_marginals
-from graph.pose_conversions import L, X, estimation_error
-from graph.settings import SmootherSettings
-from graph.smoother import run_smoother
+from vislam.graph.isam2 import run_isam2
+from vislam.graph.marginals import gtsam_marginals, schur_marginals
+from vislam.graph.pose_conversions import L, X, estimation_error
+from vislam.graph.settings import SmootherSettings
+from vislam.graph.smoother import run_smoother
 
 CONFIG = FilterConfig(clean_tracks=False)  # simulated tracks need no repair
 
@@ -52,7 +52,7 @@ def test_noise_free_isam2_recovers_ground_truth(noise_free):
 
 @pytest.mark.slow
 def test_noisy_smoother_beats_the_ekf(noisy):
-    from ekf.estimators import ESTIMATORS
+    from vislam.ekf.estimators import ESTIMATORS
 
     ekf = ESTIMATORS["ekf-joint"](noisy.sequence, CONFIG, None)
     est = run_smoother(noisy.sequence, CONFIG, initial=ekf)
@@ -60,7 +60,7 @@ def test_noisy_smoother_beats_the_ekf(noisy):
     ate_smoother = ate_rmse(est.poses, noisy.poses)
     assert ate_smoother < ate_ekf, (ate_smoother, ate_ekf)
     # the covariance is roughly consistent: mean pose NEES within a loose band of 6
-    from eval.metrics import nees_pose
+    from vislam.eval.metrics import nees_pose
 
     nees = nees_pose(est.poses, est.pose_cov, noisy.poses)
     assert 1.0 < np.mean(nees) < 20.0
@@ -139,9 +139,9 @@ def test_marginals_are_the_gaussian_models_at_the_robust_solution(noisy):
     """The covariances come from the stereo factors without the Huber kernel (graph.factors.
     gaussian_stereo): the same factors and keys, Gaussian noise, so at least the information
     of the robust weights (which are at most 1) and strictly more where a weight is below 1."""
-    from graph.factors import gaussian_stereo
-    from graph.marginals import batch_marginals
-    from graph.smoother import _solve
+    from vislam.graph.factors import gaussian_stereo
+    from vislam.graph.marginals import batch_marginals
+    from vislam.graph.smoother import _solve
 
     seq, cfg, settings = noisy.sequence, FilterConfig(gyro_bias=False), SmootherSettings(gyro_bias="off")
     sol = _solve(seq, cfg, init=None, initial=None, settings=settings, progress=None)

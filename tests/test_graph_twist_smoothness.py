@@ -8,16 +8,16 @@ import gtsam
 import numpy as np
 import pytest
 
-from ekf.cleaning import find_repeat_events
-from ekf.config import FilterConfig
-from ekf.errors import InputError
-from ekf.geometry import se3_exp
-from eval.metrics import ate_rmse, kitti_drift
-from eval.simulate import SimConfig, simulate
-from graph.pose_conversions import X, from_pose3, to_pose3
-from graph.settings import SmootherSettings
-from graph.smoother import run_smoother
-from graph.twist_smoothness import (MIN_SIGMA, add_smoothness_factors, linearised, prior_intervals,
+from vislam.ekf.cleaning import find_repeat_events
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import se3_exp
+from vislam.eval.metrics import ate_rmse, kitti_drift
+from vislam.eval.simulate import SimConfig, simulate
+from vislam.graph.pose_conversions import X, from_pose3, to_pose3
+from vislam.graph.settings import SmootherSettings
+from vislam.graph.smoother import run_smoother
+from vislam.graph.twist_smoothness import (MIN_SIGMA, add_smoothness_factors, linearised, prior_intervals,
                                     smoothness_error, smoothness_factor, smoothness_sigma,
                                     twist_residuals)
 from tests.numdiff import numeric_jacobian
@@ -172,7 +172,7 @@ def test_prior_improves_the_smoother_across_gaps(drive_with_events):
 
 
 def test_prior_improves_isam2_across_gaps():
-    from graph.isam2 import run_isam2
+    from vislam.graph.isam2 import run_isam2
 
     sim = simulate(SimConfig(seed=2, n_frames=200, repeat_event_rate=0.08))
     base = SmootherSettings(compute_marginals=False)

@@ -7,10 +7,10 @@ import os
 import numpy as np
 import pytest
 
-from ekf.errors import InputError
-from ekf.geometry import se3_exp, se3_inv
-from ekf.sequence import Calibration
-from eval.groundtruth import (
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import se3_exp, se3_inv
+from vislam.ekf.sequence import Calibration
+from vislam.eval.groundtruth import (
     camera_to_imu_poses,
     find_ground_truth,
     ground_truth_path,
@@ -65,7 +65,7 @@ def test_conversion_gives_imu_poses_in_frame0_imu(tmp_path):
 
 
 def test_lookup_next_to_the_data_and_override(tmp_path):
-    from eval.loader import write_npz
+    from vislam.eval.loader import write_npz
 
     T = 8
     feats = -np.ones((4, 2, T))
@@ -138,7 +138,7 @@ def test_0027_ground_truth(drive_path):
 
 
 def _drive_with_gt_slot(tmp_path):
-    from eval.loader import write_npz
+    from vislam.eval.loader import write_npz
 
     T = 8
     write_npz(tmp_path / "drive.npz", time_stamps=np.arange(T) * 0.1,
@@ -214,8 +214,7 @@ def test_huge_translation_is_an_error_not_inf(tmp_path):
 
 
 def test_oversized_ground_truth_is_refused(tmp_path, monkeypatch):
-    import eval.groundtruth as groundtruth
-
+    import vislam.eval.groundtruth as groundtruth
     path = tmp_path / "gt.txt"
     path.write_text((_pose_line() + "\n") * 10)
     monkeypatch.setattr(groundtruth, "MAX_GROUND_TRUTH_BYTES", 100)

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ekf.geometry import se3_exp
-from eval.cli import main
-from eval.groundtruth import imu_to_camera_poses, write_kitti_poses
-from eval.loader import write_npz
+from vislam.ekf.geometry import se3_exp
+from vislam.eval.cli import main
+from vislam.eval.groundtruth import imu_to_camera_poses, write_kitti_poses
+from vislam.eval.loader import write_npz
 
 REPO = Path(__file__).resolve().parent.parent
 CAM_T_IMU = se3_exp(np.array([1.1, -0.3, 0.7, 1.2, -1.2, 1.2]))
@@ -76,7 +76,7 @@ def test_inspect_bad_files_exit_2_with_one_line(tmp_path, capsys):
 
 def test_inspect_subprocess_exit_code_and_stderr(tmp_path):
     bad = tmp_path / "missing.npz"
-    proc = subprocess.run([sys.executable, "-m", "eval.cli", "inspect", str(bad)],
+    proc = subprocess.run([sys.executable, "-m", "vislam.eval.cli", "inspect", str(bad)],
                           capture_output=True, text=True, cwd=REPO, timeout=120)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()

@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ekf import inverse_depth as idp
-from ekf import invariant as inv
-from ekf.config import FilterConfig
-from ekf.geometry import adjoint, hat, homogeneous, se3_exp, se3_inv
-from ekf.joint import JointState, gauge_nullspace, run_joint
-from ekf.stereo_update import StereoModel
-from eval.simulate import SimConfig, simulate
+from vislam.ekf import inverse_depth as idp
+from vislam.ekf import invariant as inv
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.geometry import adjoint, hat, homogeneous, se3_exp, se3_inv
+from vislam.ekf.joint import JointState, gauge_nullspace, run_joint
+from vislam.ekf.stereo_update import StereoModel
+from vislam.eval.simulate import SimConfig, simulate
 from tests.numdiff import numeric_jacobian
 from tests.test_ekf_invariant import CAL, observe, random_pose, visible_landmark
 
@@ -209,7 +209,7 @@ def test_joint_update_with_inverse_depth_matches_dense_reference(linearisation):
         T0 = N0 @ N0.T  # a covariance along the old nullspace is carried onto the new one
         st.P = T0.copy()
         st.lm_mean = x0 + dx[6:].reshape(-1, 3)
-        from ekf.joint import transport
+        from vislam.ekf.joint import transport
 
         transport(st.P, st.core, se3_exp(dx[:6]), st.transport_rows(dx[6:].reshape(-1, 3), x0, U0))
         st.U = se3_exp(dx[:6]) @ U0

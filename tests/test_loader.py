@@ -1,4 +1,4 @@
-"""eval.loader: both editions of the data format, validation of every fault, the real drives."""
+"""vislam.eval.loader: both editions of the data format, validation of every fault, the real drives."""
 
 from __future__ import annotations
 
@@ -15,10 +15,10 @@ import zipfile
 import numpy as np
 import pytest
 
-from ekf.errors import InputError
-from ekf.geometry import se3_exp, se3_inv
-from ekf.sequence import Sequence
-from eval.loader import (
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import se3_exp, se3_inv
+from vislam.ekf.sequence import Sequence
+from vislam.eval.loader import (
     load_sequence,
     load_sequence_with_report,
     read_calibration,
@@ -478,7 +478,7 @@ def test_partial_observations_are_dropped_counted_and_logged(tmp_path, caplog):
     arrays["features"][1, j3, t3] = -5.0          # a negative coordinate, not the marker
     arrays["features"][0, j4, t4] = -0.5
     path = write(tmp_path, arrays)
-    with caplog.at_level(logging.WARNING, logger="eval.loader"):
+    with caplog.at_level(logging.WARNING, logger="vislam.eval.loader"):
         seq, report = load_sequence_with_report(path)
     assert report.n_partial == 2 and report.n_negative == 2 and report.n_invalid == 4
     assert report.first_invalid == (int(j1), int(t1))  # the first in (track, frame) order
@@ -488,14 +488,14 @@ def test_partial_observations_are_dropped_counted_and_logged(tmp_path, caplog):
     for j, t in ((j1, t1), (j2, t2), (j3, t3), (j4, t4)):
         dense[:, j, t] = -1
     np.testing.assert_array_equal(seq.obs.to_dense(M), dense)
-    messages = [r.getMessage() for r in caplog.records if r.name == "eval.loader"]
+    messages = [r.getMessage() for r in caplog.records if r.name == "vislam.eval.loader"]
     assert len(messages) == 1
     assert str(path) in messages[0] and "4 observation" in messages[0]
     assert f"track {j1}, frame {t1}" in messages[0]
     # load_sequence is the same without the report; a valid file gives no warning.
     assert_same_sequence(load_sequence(path), seq)
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="eval.loader"):
+    with caplog.at_level(logging.WARNING, logger="vislam.eval.loader"):
         _, report = load_sequence_with_report(write(tmp_path, valid_arrays(), "ok.npz"))
     assert report.n_invalid == 0
     assert not caplog.records

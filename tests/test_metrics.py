@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from ekf.errors import InputError
-from ekf.estimate import Estimate
-from ekf.geometry import se3_exp, so3_exp
-from eval.metrics import (
+from vislam.ekf.errors import InputError
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.geometry import se3_exp, so3_exp
+from vislam.eval.metrics import (
     align_trajectory,
     ate_rmse,
     kitti_drift,

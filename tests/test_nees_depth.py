@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.benchmark import DEFAULT_NEES_FRAMES, nees_sim_config
-from eval.cli import main
-from eval.simulate import DEFAULT_SIM, simulate
+from vislam.eval.benchmark import DEFAULT_NEES_FRAMES, nees_sim_config
+from vislam.eval.cli import main
+from vislam.eval.simulate import DEFAULT_SIM, simulate
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 SWEEP = Path(__file__).resolve().parents[1] / "benchmarks" / "nees_depth_sweep.py"
@@ -80,7 +80,7 @@ def sweep():
 
 
 def test_depth_sweep_end_to_end(sweep, tmp_path, capsys):
-    from ekf.config import LANDMARK_PARAMETERISATIONS
+    from vislam.ekf.config import LANDMARK_PARAMETERISATIONS
 
     out = tmp_path / "sweep"
     assert sweep.main(["--runs", "2", "--frames", "30", "--depths", "25,15",

@@ -79,9 +79,9 @@ def _streams(nb) -> str:
 def test_notebook_executes_on_a_folder_without_ground_truth(monkeypatch, tmp_path):
     """A results folder of a drive file without ground truth (as 0034 is): the notebook loads
     the saved estimates, says that accuracy needs ground truth, and draws the rest."""
-    from ekf.config import FilterConfig
-    from eval.benchmark import collect_sequences, run_benchmark
-    from eval.simulate import SimConfig, simulate, write_simulation
+    from vislam.ekf.config import FilterConfig
+    from vislam.eval.benchmark import collect_sequences, run_benchmark
+    from vislam.eval.simulate import SimConfig, simulate, write_simulation
 
     paths = write_simulation(simulate(SimConfig(seed=2, n_frames=TEST_FRAMES)), tmp_path / "data", "nogt")
     for f in (tmp_path / "data" / "groundtruth").glob("*"):

@@ -15,16 +15,16 @@ from pathlib import Path
 
 import pytest
 
-from ekf.errors import InputError
-from eval import benchmark
-from eval.cli import main
-from eval.output_dir import MARKER, OutputDir
+from vislam.ekf.errors import InputError
+from vislam.eval import benchmark
+from vislam.eval.cli import main
+from vislam.eval.output_dir import MARKER, OutputDir
 
 
 @pytest.fixture(scope="module")
 def drive_dir(tmp_path_factory) -> Path:
     """A folder as a user has it: a drive, its ground truth, notes of their own."""
-    from eval.simulate import SimConfig, simulate, write_simulation
+    from vislam.eval.simulate import SimConfig, simulate, write_simulation
 
     folder = tmp_path_factory.mktemp("data")
     write_simulation(simulate(SimConfig(seed=4, n_frames=40, name="drive")), folder)
@@ -42,12 +42,11 @@ def snapshot(folder: Path) -> dict[str, bytes]:
 
 def no_estimation(monkeypatch):
     """Fail the test if any estimator starts: output checks come first."""
-    import eval.runjob
-
+    import vislam.eval.runjob as eval_runjob
     def boom(*args, **kwargs):
         raise AssertionError("an estimator ran before the output folder was checked")
 
-    monkeypatch.setattr(eval.runjob, "run_estimator", boom)
+    monkeypatch.setattr(eval_runjob, "run_estimator", boom)
     monkeypatch.setattr(benchmark, "run_estimator", boom)
 
 
@@ -268,7 +267,7 @@ def test_eight_concurrent_writers_of_one_folder(tmp_path):
 def _vislam(args: list[str], cwd: Path, env: dict | None = None) -> subprocess.Popen:
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "MPLBACKEND": "Agg", **(env or {})}
     return subprocess.Popen(
-        [sys.executable, "-c", "import sys; from eval.cli import main; sys.exit(main())", *args],
+        [sys.executable, "-c", "import sys; from vislam.eval.cli import main; sys.exit(main())", *args],
         cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         start_new_session=True,
     )
@@ -358,9 +357,8 @@ def test_simulate_adds_drives_and_never_replaces_a_users_file(tmp_path, capsys):
 
 
 def test_bench_exits_3_with_one_line_per_failed_estimator(tmp_path, monkeypatch, capsys):
-    import eval.registry
-
-    real = eval.registry.get_estimator
+    import vislam.eval.registry as eval_registry
+    real = eval_registry.get_estimator
 
     def failing(name):
         if name == "mapping":
@@ -369,7 +367,7 @@ def test_bench_exits_3_with_one_line_per_failed_estimator(tmp_path, monkeypatch,
             return crash
         return real(name)
 
-    monkeypatch.setattr(eval.registry, "get_estimator", failing)
+    monkeypatch.setattr(eval_registry, "get_estimator", failing)
     out = tmp_path / "b"
     code, err = run_cli(["bench", "--frames", "20", "-e", "dead-reckoning,mapping", "-j", "1",
                          "--out", str(out), "-q"], capsys)

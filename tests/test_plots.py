@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ekf.estimate import Estimate
-from ekf.geometry import se3_exp
-from eval import plots
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.geometry import se3_exp
+from vislam.eval import plots
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -27,11 +27,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ekf.errors import InputError
-from ekf.geometry import se3_inv
-from ekf.sequence import Calibration, Sequence
-from eval.groundtruth import GroundTruth, find_ground_truth, load_ground_truth
-from eval.loader import load_sequence_with_report, read_calibration
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import se3_inv
+from vislam.ekf.sequence import Calibration, Sequence
+from vislam.eval.groundtruth import GroundTruth, find_ground_truth, load_ground_truth
+from vislam.eval.loader import load_sequence_with_report, read_calibration
 
 #: Examples per property in CI (1,200 in all: about 5 s, well under 20 s on two cores).
 EXAMPLES = int(os.environ.get("VISLAM_PROPERTY_EXAMPLES", "0")) or None
@@ -48,7 +48,7 @@ def examples(ci: int) -> int:
 @lru_cache(maxsize=1)
 def base_arrays() -> dict[str, np.ndarray]:
     """A small valid drive in edition-1 layout (8 frames, a few dozen tracks)."""
-    from eval.simulate import SimConfig, simulate
+    from vislam.eval.simulate import SimConfig, simulate
 
     seq = simulate(SimConfig(n_frames=8, seed=5, landmark_density=0.6)).sequence
     cal = seq.calibration

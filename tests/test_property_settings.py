@@ -25,10 +25,10 @@ import numpy as np
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
-from ekf.config import FILTER_RULES, FilterConfig
-from ekf.errors import InputError
-from eval.runjob import filter_config_from_args, smoother_settings_from_args
-from graph.settings import SMOOTHER_RULES, SmootherSettings
+from vislam.ekf.config import FILTER_RULES, FilterConfig
+from vislam.ekf.errors import InputError
+from vislam.eval.runjob import filter_config_from_args, smoother_settings_from_args
+from vislam.graph.settings import SMOOTHER_RULES, SmootherSettings
 
 EXAMPLES = int(os.environ.get("VISLAM_PROPERTY_EXAMPLES", "500"))
 

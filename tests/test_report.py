@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.cli import main
+from vislam.eval.cli import main
 
 BROWSERS = ("chromium", "chromium-browser", "google-chrome")
 

@@ -22,12 +22,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ekf.config import FilterConfig
-from ekf.errors import EstimationError, InputError
-from ekf.estimate import Estimate
-from ekf.sequence import Observations, Sequence
-from eval.registry import ESTIMATOR_NAMES, get_estimator
-from eval.simulate import SimConfig, simulate
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.errors import EstimationError, InputError
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.sequence import Observations, Sequence
+from vislam.eval.registry import ESTIMATOR_NAMES, get_estimator
+from vislam.eval.simulate import SimConfig, simulate
 
 EKFS = ("dead-reckoning", "mapping", "ekf-decoupled", "ekf-joint", "ekf-invariant")
 SMOOTHERS = ("smoother", "smoother-isam2")
@@ -320,8 +320,8 @@ def test_normal_drive_has_no_numerical_rejections(name):
 # The update itself: rejected updates leave the state untouched
 # --------------------------------------------------------------------------------------
 def _joint_state_with_landmarks():
-    from ekf.joint import JointState
-    from ekf.stereo_update import StereoModel
+    from vislam.ekf.joint import JointState
+    from vislam.ekf.stereo_update import StereoModel
 
     seq = base_drive(0)
     cfg = FilterConfig(landmark_parameterisation="euclidean")  # lm_mean: world points
@@ -335,7 +335,7 @@ def _joint_state_with_landmarks():
 
 
 def test_joint_rejected_update_leaves_state_unchanged():
-    from ekf.numerics import UpdateRejected
+    from vislam.ekf.numerics import UpdateRejected
 
     st_, model, tracks, z = _joint_state_with_landmarks()
     st_.P[6:, 6:] *= -1.0  # an indefinite covariance: S cannot be factorised
@@ -347,8 +347,8 @@ def test_joint_rejected_update_leaves_state_unchanged():
 
 
 def test_invariant_rejected_update_leaves_state_unchanged():
-    from ekf.invariant import _State, _update, landmark_offset
-    from ekf.numerics import UpdateRejected
+    from vislam.ekf.invariant import _State, _update, landmark_offset
+    from vislam.ekf.numerics import UpdateRejected
 
     seq = base_drive(0)
     cfg = FilterConfig()
@@ -367,8 +367,8 @@ def test_invariant_rejected_update_leaves_state_unchanged():
 
 
 def test_decoupled_rejected_update_raises_before_changing_anything():
-    from ekf.decoupled import pose_update_checked
-    from ekf.numerics import UpdateRejected
+    from vislam.ekf.decoupled import pose_update_checked
+    from vislam.ekf.numerics import UpdateRejected
 
     st_, model, _, _ = _joint_state_with_landmarks()
     tracks, z = base_drive(0).frame(0)  # the observations the landmarks came from
@@ -380,7 +380,7 @@ def test_decoupled_rejected_update_raises_before_changing_anything():
 
 
 def test_singular_innovation_rows_are_gated_out():
-    from ekf.stereo_update import StereoModel
+    from vislam.ekf.stereo_update import StereoModel
 
     seq = base_drive(0)
     model = StereoModel.from_config(seq.calibration, FilterConfig())
@@ -443,9 +443,9 @@ def test_check_finite_allows_covariances_not_computed(tmp_path):
     "case", ["nan_poses", "singular_covs", "huge_motion", "no_intervals"]
 )
 def test_estimate_bias_degenerate_input(case, caplog):
-    from graph.factors import relative_motions
-    from graph.gyro_bias import GyroBiasModel, estimate_bias
-    from graph.factors import interval_twists as graph_twists
+    from vislam.graph.factors import relative_motions
+    from vislam.graph.gyro_bias import GyroBiasModel, estimate_bias
+    from vislam.graph.factors import interval_twists as graph_twists
 
     caplog.set_level(logging.WARNING)
     seq = base_drive(0)
@@ -470,13 +470,12 @@ def test_estimate_bias_degenerate_input(case, caplog):
 
 
 def test_smoother_survives_a_failing_ekf_initialisation(monkeypatch):
-    import ekf.estimators
-
+    import vislam.ekf.estimators as ekf_estimators
     def broken(seq, config, progress=None):
         raise EstimationError("ekf-invariant: frame 3 (t=0.30 s): innovation covariance")
 
-    monkeypatch.setitem(ekf.estimators.ESTIMATORS, "ekf-invariant", broken)
-    monkeypatch.setitem(ekf.estimators.ESTIMATORS, "ekf-joint", broken)
+    monkeypatch.setitem(ekf_estimators.ESTIMATORS, "ekf-invariant", broken)
+    monkeypatch.setitem(ekf_estimators.ESTIMATORS, "ekf-joint", broken)
     est = run_checked("smoother", truncate(base_drive(0), 20))
     assert est is not None and "dead-reckoning" in est.info["init"]
 

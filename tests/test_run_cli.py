@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from ekf.estimate import Estimate
-from eval.cli import main
-from eval.output_dir import MARKER
-from eval.registry import ESTIMATOR_NAMES, get_estimator
+from vislam.ekf.estimate import Estimate
+from vislam.eval.cli import main
+from vislam.eval.output_dir import MARKER
+from vislam.eval.registry import ESTIMATOR_NAMES, get_estimator
 
 OUTPUTS = ("trajectory.tum", "trajectory.kitti", "map.npz", "estimate.npz", "metrics.json",
            "settings.json")
@@ -22,7 +22,7 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 @pytest.fixture(scope="module")
 def sim_file(tmp_path_factory):
-    from eval.simulate import SimConfig, simulate, write_simulation
+    from vislam.eval.simulate import SimConfig, simulate, write_simulation
 
     folder = tmp_path_factory.mktemp("sim")
     paths = write_simulation(simulate(SimConfig(seed=4, n_frames=60, name="short")), folder)
@@ -30,8 +30,8 @@ def sim_file(tmp_path_factory):
 
 
 def test_registry_names_and_unknown_name():
-    from ekf.errors import InputError
-    from eval.registry import DEFAULT_BENCH, parse_estimator_list
+    from vislam.ekf.errors import InputError
+    from vislam.eval.registry import DEFAULT_BENCH, parse_estimator_list
 
     assert ESTIMATOR_NAMES[0] == "dead-reckoning" and ESTIMATOR_NAMES[-1] == "smoother-isam2"
     assert "smoother-isam2" not in DEFAULT_BENCH and len(DEFAULT_BENCH) == 6
@@ -96,8 +96,7 @@ def test_run_without_ground_truth_plots_trajectory_and_map_only(sim_file, tmp_pa
 @pytest.mark.parametrize("exc", [RuntimeError("no font"), KeyboardInterrupt()])
 def test_a_failing_plot_writes_nothing_and_keeps_the_previous_results(exc, sim_file, tmp_path,
                                                                      monkeypatch):
-    import eval.plots as plots
-
+    import vislam.eval.plots as plots
     out = tmp_path / "out"
     assert main(["run", str(sim_file), "-e", "dead-reckoning", "--out", str(out), "-q"]) == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
@@ -162,8 +161,7 @@ def test_run_bad_file_exits_2_and_writes_nothing(sim_file, tmp_path, capsys):
 
 
 def test_run_leaves_nothing_when_the_estimator_fails(sim_file, tmp_path, monkeypatch):
-    import eval.runjob as runjob
-
+    import vislam.eval.runjob as runjob
     def boom(*args, **kwargs):
         raise KeyboardInterrupt
 
@@ -236,7 +234,7 @@ def test_messages_stay_one_line_and_printable(sim_file, tmp_path, capsys, monkey
 
 
 def test_absurd_but_finite_values_are_refused_naming_the_key(tmp_path, capsys):
-    from eval.loader import read_arrays
+    from vislam.eval.loader import read_arrays
 
     arrays = read_arrays(_small(tmp_path))
     for key, index, value, words in (("linear_velocity", (0, 3), 1e300, "not a velocity"),
@@ -252,7 +250,7 @@ def test_absurd_but_finite_values_are_refused_naming_the_key(tmp_path, capsys):
 
 
 def _small(tmp_path):
-    from eval.simulate import SimConfig, simulate, write_simulation
+    from vislam.eval.simulate import SimConfig, simulate, write_simulation
 
     return write_simulation(simulate(SimConfig(seed=2, n_frames=10, name="tiny")),
                             tmp_path / "tiny")["data"]

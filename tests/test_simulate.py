@@ -8,11 +8,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ekf.camera import project
-from ekf.errors import InputError
-from ekf.geometry import homogeneous, is_rigid, se3_exp, se3_inv
-from eval.cli import main as cli_main
-from eval.simulate import (
+from vislam.ekf.camera import project
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import homogeneous, is_rigid, se3_exp, se3_inv
+from vislam.eval.cli import main as cli_main
+from vislam.eval.simulate import (
     DEFAULT_SIM,
     KITTI_CAM_T_IMU,
     SimConfig,
@@ -217,7 +217,7 @@ def test_cli_writes_the_files(tmp_path, capsys):
 
 
 def test_written_file_loads_back_as_the_same_sequence(tmp_path):
-    from eval.loader import load_sequence
+    from vislam.eval.loader import load_sequence
 
     result = simulate(SMALL)
     paths = write_simulation(result, tmp_path, "drive")
@@ -239,7 +239,7 @@ def test_written_file_loads_back_as_the_same_sequence(tmp_path):
     (["--repeat-event-rate", "-0.1"], "repeat_event_rate"),
 ])
 def test_hostile_simulation_settings_one_line_exit_2_nothing_written(flags, message, tmp_path, capsys):
-    from eval.cli import main
+    from vislam.eval.cli import main
 
     out = tmp_path / "sim"
     frames = [] if "--frames" in flags else ["--frames", "20"]

@@ -11,13 +11,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ekf.errors import InputError
-from ekf.geometry import se3_exp, se3_inv, so3_exp
-from ekf.model import Model
-from ekf.prediction import paired_velocities
-from eval.groundtruth import find_ground_truth
-from eval.loader import load_sequence
-from eval.simulate import KITTI_CAM_T_IMU, SimConfig, simulate, write_simulation
+from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import se3_exp, se3_inv, so3_exp
+from vislam.ekf.model import Model
+from vislam.ekf.prediction import paired_velocities
+from vislam.eval.groundtruth import find_ground_truth
+from vislam.eval.loader import load_sequence
+from vislam.eval.simulate import KITTI_CAM_T_IMU, SimConfig, simulate, write_simulation
 
 BASE = SimConfig(seed=21, n_frames=120)
 
@@ -158,7 +158,7 @@ def test_bad_fault_settings(change, needle):
 
 
 def test_cli_makes_the_faults(tmp_path, capsys):
-    from eval.cli import main
+    from vislam.eval.cli import main
 
     out = tmp_path / "sim"
     rc = main(["simulate", "--out", str(out), "--frames", "40", "--seed", "3",

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from ekf import camera
-from ekf.config import FilterConfig
-from ekf.errors import InputError
-from ekf.estimators import ESTIMATORS
-from eval.simulate import SimConfig, simulate
+from vislam.ekf import camera
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.errors import InputError
+from vislam.ekf.estimators import ESTIMATORS
+from vislam.eval.simulate import SimConfig, simulate
 
 K = np.array([[707.0912, 0.0, 601.8873], [0.0, 707.0912, 183.1104], [0.0, 0.0, 1.0]])
 B = 0.537

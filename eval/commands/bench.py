@@ -18,9 +18,9 @@ EXIT_FAILURES = 3
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from eval.benchmark import DEFAULT_BENCH_FRAMES
-    from eval.registry import DEFAULT_BENCH, ESTIMATOR_NAMES
-    from eval.runjob import add_filter_arguments
+    from vislam.eval.benchmark import DEFAULT_BENCH_FRAMES
+    from vislam.eval.registry import DEFAULT_BENCH, ESTIMATOR_NAMES
+    from vislam.eval.runjob import add_filter_arguments
 
     parser.add_argument("paths", nargs="*", metavar="PATH", help=".npz files or folders of them")
     parser.add_argument("--out", "-o", metavar="DIR",
@@ -47,8 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ekf.errors import InputError
-    from eval.benchmark import (
+    from vislam.ekf.errors import InputError
+    from vislam.eval.benchmark import (
         apply_model_to,
         as_given,
         collect_sequences,
@@ -56,9 +56,9 @@ def run(args: argparse.Namespace) -> int:
         identify_models,
         run_benchmark,
     )
-    from eval.model_cache import cache_dir
-    from eval.registry import DEFAULT_BENCH, estimators_from_flag
-    from eval.runjob import (
+    from vislam.eval.model_cache import cache_dir
+    from vislam.eval.registry import DEFAULT_BENCH, estimators_from_flag
+    from vislam.eval.runjob import (
         environment_settings,
         filter_config_from_args,
         model_from_args,

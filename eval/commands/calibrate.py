@@ -32,7 +32,7 @@ import numpy as np
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from eval.runjob import add_filter_arguments
+    from vislam.eval.runjob import add_filter_arguments
 
     parser.add_argument("file", metavar="FILE.npz", help="the drive (.npz data file)")
     parser.add_argument("--out", "-o", metavar="MODEL.toml",
@@ -49,12 +49,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ekf.config import VELOCITY_PAIRINGS
-    from ekf.errors import InputError
-    from eval.atomic import write_text
-    from eval.loader import load_sequence
-    from eval.runjob import filter_config_from_args, smoother_settings_from_args
-    from graph.identification import identify_model
+    from vislam.ekf.config import VELOCITY_PAIRINGS
+    from vislam.ekf.errors import InputError
+    from vislam.eval.atomic import write_text
+    from vislam.eval.loader import load_sequence
+    from vislam.eval.runjob import filter_config_from_args, smoother_settings_from_args
+    from vislam.graph.identification import identify_model
 
     config = filter_config_from_args(args)
     smoother = smoother_settings_from_args(args).replace(compute_marginals=False)
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     model = fit.to_model(f"vislam calibrate {Path(args.file).name} ({how})")
     print(report(seq.name, seq.n_frames, fit, config))
     if fit.solution is not None:  # issue 12's data check, under the identified model
-        from graph.data_check import velocity_check
+        from vislam.graph.data_check import velocity_check
 
         print("")
         print("\n".join(velocity_check(fit.solution, fit.config).lines()))
@@ -90,8 +90,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_out(out: Path, force: bool) -> None:
     """``--out`` is a new file, or a model file vislam wrote (or ``--force``)."""
-    from ekf.errors import InputError
-    from ekf.model import MODEL_FILE_HEADER
+    from vislam.ekf.errors import InputError
+    from vislam.ekf.model import MODEL_FILE_HEADER
 
     if out.is_dir():
         raise InputError(f"--out {out}: is a folder; give a file name such as model.toml")
@@ -114,8 +114,8 @@ def _fmt(values, digits: int = 4) -> str:
 
 def _verdict(fit) -> list[str]:
     """The file's extrinsic against the identified one, in the data's sigmas."""
-    from ekf.model import EXTRINSIC_COMPONENTS
-    from graph.extrinsic import lever_arm, mahalanobis, theta_between
+    from vislam.ekf.model import EXTRINSIC_COMPONENTS
+    from vislam.graph.extrinsic import lever_arm, mahalanobis, theta_between
 
     if fit.cam_T_imu_cov is None:
         return []
@@ -148,8 +148,8 @@ def _verdict(fit) -> list[str]:
 
 def report(name: str, frames: int, fit, config) -> str:
     """The identified model beside the settings it replaces, and a verdict per quantity."""
-    from ekf.model import EXTRINSIC_COMPONENTS
-    from graph.extrinsic import lever_arm, lever_arm_covariance
+    from vislam.ekf.model import EXTRINSIC_COMPONENTS
+    from vislam.graph.extrinsic import lever_arm, lever_arm_covariance
 
     given_v, given_g = config.velocity_sigmas, config.gyro_sigmas
     lines = [

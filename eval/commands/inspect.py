@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ekf.cleaning import clean_sequence, find_repeat_events
-from eval.groundtruth import find_ground_truth
-from eval.loader import load_sequence_with_report
+from vislam.ekf.cleaning import clean_sequence, find_repeat_events
+from vislam.eval.groundtruth import find_ground_truth
+from vislam.eval.loader import load_sequence_with_report
 
 #: Depth (m) beyond which a point counts as far; its disparity is fsu * b / FAR_DEPTH px.
 FAR_DEPTH = 80.0
@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--stretch", metavar="S", default=None,
         help=f"--check: length of a stretch in seconds (default {CHECK_STRETCH_S:g})",
     )
-    from eval.runjob import add_filter_arguments
+    from vislam.eval.runjob import add_filter_arguments
 
     before = {a.dest for a in parser._actions}
     add_filter_arguments(parser)
@@ -171,8 +171,8 @@ def summarise(path: Path, gt_path: Path | None = None) -> list[str]:
 def _check_inputs(args: argparse.Namespace):
     """``--check``'s settings, every one checked before anything is printed:
     ``(config, smoother settings, model or None, stretch_s)``; InputError otherwise."""
-    from ekf.errors import InputError
-    from eval.runjob import (
+    from vislam.ekf.errors import InputError
+    from vislam.eval.runjob import (
         filter_config_from_args,
         model_from_args,
         smoother_settings_from_args,
@@ -205,10 +205,10 @@ def check_lines(path: Path, config, settings, model=None, *, stretch_s: float = 
                 level: float = CHECK_LEVEL) -> list[str]:
     """The lines of ``--check``: the drive solved by the smoother under ``config`` (a model's
     extrinsic and gyro bias applied to the data first) and its velocity check."""
-    from ekf.model import model_sequence
-    from eval.loader import load_sequence
-    from graph.data_check import velocity_check
-    from graph.smoother import solve_smoother
+    from vislam.ekf.model import model_sequence
+    from vislam.eval.loader import load_sequence
+    from vislam.graph.data_check import velocity_check
+    from vislam.graph.smoother import solve_smoother
 
     def fmt(values) -> str:
         return ",".join(f"{x:.3g}" for x in values)

@@ -21,7 +21,7 @@ MAX_SIM_DEPTH = 1000.0
 
 def sim_depth_error(depth: float) -> str | None:
     """Why ``depth`` is not a usable simulated landmark range (None when it is)."""
-    from eval.simulate import DEFAULT_SIM
+    from vislam.eval.simulate import DEFAULT_SIM
 
     if DEFAULT_SIM.min_depth < depth <= MAX_SIM_DEPTH:
         return None
@@ -30,9 +30,9 @@ def sim_depth_error(depth: float) -> str | None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from eval.benchmark import DEFAULT_NEES_FRAMES
-    from eval.runjob import add_filter_arguments
-    from eval.simulate import DEFAULT_SIM
+    from vislam.eval.benchmark import DEFAULT_NEES_FRAMES
+    from vislam.eval.runjob import add_filter_arguments
+    from vislam.eval.simulate import DEFAULT_SIM
 
     parser.add_argument("--runs", "-n", type=int, required=True, metavar="N", help="Monte Carlo runs")
     parser.add_argument("--seed", type=int, default=0, help="seed of the drive (and of the noise)")
@@ -56,15 +56,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import time
 
-    from ekf.errors import InputError
-    from eval import plots
-    from eval.atomic import write_json
-    from eval.commands.bench import EXIT_FAILURES
-    from eval.output_dir import OutputDir
-    from eval.signals import deferred
-    from eval.benchmark import monte_carlo_nees
-    from eval.registry import estimators_from_flag
-    from eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
+    from vislam.ekf.errors import InputError
+    from vislam.eval import plots
+    from vislam.eval.atomic import write_json
+    from vislam.eval.commands.bench import EXIT_FAILURES
+    from vislam.eval.output_dir import OutputDir
+    from vislam.eval.signals import deferred
+    from vislam.eval.benchmark import monte_carlo_nees
+    from vislam.eval.registry import estimators_from_flag
+    from vislam.eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
 
     estimators = estimators_from_flag(args.estimators, NEES_DEFAULT)
     config = filter_config_from_args(args)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval.registry import ESTIMATOR_NAMES
+from vislam.eval.registry import ESTIMATOR_NAMES
 
 #: What ``vislam run`` writes into ``--out`` (eval.runjob.write_run_outputs).
 RUN_FILES = ("trajectory.tum", "trajectory.kitti", "map.npz", "estimate.npz", "metrics.json",
@@ -46,20 +46,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-plots", dest="plots", action="store_false",
                         help="write no plots (by default: trajectories.png, map.png and, with "
                              "ground truth, error_over_distance.png and nees.png)")
-    from eval.runjob import add_filter_arguments
+    from vislam.eval.runjob import add_filter_arguments
 
     add_filter_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from eval.benchmark import landmark_truth_beside
-    from eval.output_dir import OutputDir
-    from eval.groundtruth import find_ground_truth
-    from eval.loader import load_sequence
-    from eval.registry import get_estimator
-    from ekf.errors import InputError
-    from ekf.model import model_sequence
-    from eval.runjob import filter_config_from_args, model_from_args, smoother_settings_from_args
+    from vislam.eval.benchmark import landmark_truth_beside
+    from vislam.eval.output_dir import OutputDir
+    from vislam.eval.groundtruth import find_ground_truth
+    from vislam.eval.loader import load_sequence
+    from vislam.eval.registry import get_estimator
+    from vislam.ekf.errors import InputError
+    from vislam.ekf.model import model_sequence
+    from vislam.eval.runjob import filter_config_from_args, model_from_args, smoother_settings_from_args
 
     # Everything that can be wrong with the input is checked before anything is written.
     get_estimator(args.estimator)
@@ -93,7 +93,7 @@ def _plot_files(gt) -> tuple[str, ...]:
 def _write_plots(tmp: Path, args, seq, gt, est, landmark_truth) -> list[Path]:
     """The benchmark's per-drive plots of this one estimator into ``tmp``. A failure is the
     command's (as in ``vislam bench``): the error goes up with a note, and nothing is written."""
-    from eval.benchmark import BenchSequence, sequence_figures
+    from vislam.eval.benchmark import BenchSequence, sequence_figures
 
     bs = BenchSequence(name=seq.name, path=str(Path(args.file).resolve()), sequence=seq, gt=gt,
                        landmark_truth=landmark_truth)
@@ -107,7 +107,7 @@ def _write_plots(tmp: Path, args, seq, gt, est, landmark_truth) -> list[Path]:
 
 def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path, *, plots: bool = True,
                         landmark_truth: np.ndarray | None = None) -> dict:
-    from eval.runjob import (
+    from vislam.eval.runjob import (
         RPE_DEFINITION,
         Progress,
         environment_settings,
@@ -115,7 +115,7 @@ def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path, *, pl
         trajectory_scores,
         write_run_outputs,
     )
-    from eval.signals import deferred
+    from vislam.eval.signals import deferred
 
     with Progress(f"{args.estimator} {seq.name}", total=seq.n_frames, enabled=not args.quiet) as bar:
         job = run_estimator(seq, args.estimator, config, progress=bar, smoother=smoother)

@@ -15,8 +15,8 @@ import re
 import time
 from pathlib import Path
 
-from ekf.errors import InputError
-from eval.simulate import (
+from vislam.ekf.errors import InputError
+from vislam.eval.simulate import (
     DEFAULT_SIM,
     FILE_EXTRINSIC_FAULTS,
     SIM_VELOCITY_PAIRINGS,
@@ -184,7 +184,7 @@ def outputs(name: str) -> tuple[str, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eval.output_dir import OutputDir
+    from vislam.eval.output_dir import OutputDir
 
     config = config_from_args(args)
     with OutputDir(args.out, force=args.force, expected=outputs(config.name)) as tmp:

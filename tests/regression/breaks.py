@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from ekf.config import FilterConfig
+from vislam.ekf.config import FilterConfig
 
 BREAKS = ("pixel-noise", "half-pixel-noise", "no-cross-cov")
 REPO = Path(__file__).resolve().parents[2]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from ekf.config import FilterConfig
+from vislam.ekf.config import FilterConfig
 from tests.regression.breaks import REPO, broken_config, regression_break, run_name, skip_or_fail
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ekf.config import FilterConfig
+from vislam.ekf.config import FilterConfig
 
 #: Monte Carlo size: runs x frames (2 worker processes: about a minute on 2 cores).
 RUNS = 10
@@ -49,9 +49,9 @@ def run_monte_carlo(config: FilterConfig, run_name, runs: int = RUNS, frames: in
                     seed: int = SEED, jobs: int = 2, sim_changes: dict | None = None) -> MonteCarlo:
     """The study for ``config``; ``run_name(logical) -> registry name`` (the deliberate break);
     ``sim_changes`` alter the default simulation (e.g. :data:`NEAR_FIELD`)."""
-    from eval.benchmark import JobFailure, landmark_nees_by_source, redraw_noise, run_jobs
-    from eval.consistency import pose_nees
-    from eval.simulate import DEFAULT_SIM, simulate
+    from vislam.eval.benchmark import JobFailure, landmark_nees_by_source, redraw_noise, run_jobs
+    from vislam.eval.consistency import pose_nees
+    from vislam.eval.simulate import DEFAULT_SIM, simulate
 
     t0 = time.perf_counter()
     sim = dataclasses.replace(DEFAULT_SIM, seed=seed, n_frames=frames, name=f"regression-seed{seed}",

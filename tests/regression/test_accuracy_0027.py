@@ -33,8 +33,8 @@ def scores_0027(kitti_data_dir, regression_config):
     """{estimator: trajectory scores} of every estimator on 0027."""
     import time
 
-    from eval.benchmark import load_bench_sequence, run_jobs
-    from eval.runjob import JobResult, trajectory_scores
+    from vislam.eval.benchmark import load_bench_sequence, run_jobs
+    from vislam.eval.runjob import JobResult, trajectory_scores
 
     path = kitti_data_dir / f"{DRIVE}.npz"
     if not path.is_file():

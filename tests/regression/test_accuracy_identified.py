@@ -48,8 +48,8 @@ TARGET_SMOOTHER_T_REL = 1.55
 
 
 def _bench(path, regression_config):
-    from eval.benchmark import identify_models, load_bench_sequence, run_jobs
-    from eval.runjob import JobResult, trajectory_scores
+    from vislam.eval.benchmark import identify_models, load_bench_sequence, run_jobs
+    from vislam.eval.runjob import JobResult, trajectory_scores
 
     if not path.is_file():
         skip_or_fail(f"{path} not found")
@@ -70,7 +70,7 @@ def _bench(path, regression_config):
 
 
 def _smoother():
-    from graph.settings import SmootherSettings
+    from vislam.graph.settings import SmootherSettings
 
     return SmootherSettings()
 
@@ -82,7 +82,7 @@ def shared(kitti_data_dir, regression_config):
 
 @pytest.fixture(scope="module")
 def edition_2019(regression_config):
-    from eval.datasets import data_dir_2019
+    from vislam.eval.datasets import data_dir_2019
 
     folder = data_dir_2019()
     if not folder.is_dir():

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy.stats import binom, chi2
 
-from eval.consistency import POSE_DOF
+from vislam.eval.consistency import POSE_DOF
 
 pytestmark = pytest.mark.slow
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eval.consistency import LANDMARK_DOF, POSE_DOF, VERDICT_ABOVE, VERDICT_INSIDE, anees
+from vislam.eval.consistency import LANDMARK_DOF, POSE_DOF, VERDICT_ABOVE, VERDICT_INSIDE, anees
 
 pytestmark = pytest.mark.slow
 

@@ -1,0 +1,56 @@
+"""vislam: visual-inertial SLAM with EKFs, cross-validated against a GTSAM factor-graph smoother.
+
+The package installs as ``vislam.ekf`` (the filters, numpy and scipy only), ``vislam.graph`` (the
+GTSAM smoothers) and ``vislam.eval`` (data, simulation, metrics, consistency, benchmark, command
+line). What a user needs is re-exported here, imported on first use (``import vislam`` stays
+cheap and never imports GTSAM):
+
+- data: :func:`load_sequence`, :func:`simulate`, :class:`SimConfig`, :class:`Sequence`,
+  :func:`find_ground_truth`;
+- estimation: :func:`run_estimator`, :class:`FilterConfig`, :class:`Estimate`;
+- scoring: :func:`trajectory_metrics`, :func:`pose_nees`, :func:`monte_carlo_nees`,
+  :func:`chi2_bounds`;
+- pytest helpers: :mod:`vislam.testing`.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+__version__ = "0.1.0"
+
+#: public name -> module that defines it
+_EXPORTS = {
+    "Sequence": "vislam.ekf.sequence",
+    "Estimate": "vislam.ekf.estimate",
+    "FilterConfig": "vislam.ekf.config",
+    "InputError": "vislam.ekf.errors",
+    "EstimationError": "vislam.ekf.errors",
+    "load_sequence": "vislam.eval.loader",
+    "find_ground_truth": "vislam.eval.groundtruth",
+    "simulate": "vislam.eval.simulate",
+    "SimConfig": "vislam.eval.simulate",
+    "run_estimator": "vislam.eval.runjob",
+    "trajectory_metrics": "vislam.eval.metrics",
+    "pose_nees": "vislam.eval.consistency",
+    "chi2_bounds": "vislam.eval.consistency",
+    "monte_carlo_nees": "vislam.eval.benchmark",
+}
+
+__all__ = sorted(_EXPORTS) + ["testing"]
+
+
+def __getattr__(name: str):
+    if name == "testing":
+        return importlib.import_module("vislam.testing")
+    try:
+        module = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module 'vislam' has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return __all__
