@@ -225,12 +225,17 @@ def position_deviation(est: Estimate, ref: Estimate) -> tuple[np.ndarray, np.nda
     return dev, sigma
 
 
-def versus_smoother(est: Estimate, smoother: Estimate, probability: float = 0.95) -> dict:
+def versus_smoother(est: Estimate, smoother: Estimate, probability: float = 0.95,
+                    align: str = "se3") -> dict:
     """Cross-validation of ``est`` against the smoother: ``ate_m`` and ``ate_aligned_m`` (est
-    trajectory error w.r.t. the smoother's), ``map_rmse_m`` (landmark RMSE over tracks both
+    trajectory error w.r.t. the smoother's, raw and after the alignment ``align``, one of
+    :data:`eval.metrics.ALIGN_MODES`), ``map_rmse_m`` (landmark RMSE over tracks both
     estimated), ``nees_pose_mean`` (est error w.r.t. the smoother normalised by est's covariance,
     steps 1..T-1) and ``inside_95_fraction`` (share of steps with NEES <= chi2.ppf(0.95, 6)).
-    Anything that cannot be computed is None."""
+    Anything that cannot be computed is None; an unknown ``align`` is an InputError."""
+    from vislam.eval.metrics import check_align_mode
+
+    check_align_mode(align)
     out = {
         "ate_m": None,
         "ate_aligned_m": None,
@@ -241,7 +246,7 @@ def versus_smoother(est: Estimate, smoother: Estimate, probability: float = 0.95
     if est.n_frames != smoother.n_frames:
         return out
     out["ate_m"] = ate_or_none(est.poses, smoother.poses, align=None)
-    out["ate_aligned_m"] = ate_or_none(est.poses, smoother.poses, align="se3")
+    out["ate_aligned_m"] = ate_or_none(est.poses, smoother.poses, align=align)
     ia, ib = match_landmarks(est, smoother)
     if ia.size:
         d = est.landmarks[ia] - smoother.landmarks[ib]
@@ -257,10 +262,14 @@ def versus_smoother(est: Estimate, smoother: Estimate, probability: float = 0.95
 
 
 def ate_or_none(est_poses: np.ndarray, ref_poses: np.ndarray, align: str | None) -> float | None:
-    """ATE RMSE (m) of ``est_poses`` against ``ref_poses``; None where it cannot be computed
-    (degenerate alignment, non-finite poses)."""
+    """ATE RMSE (m) of ``est_poses`` against ``ref_poses`` after the alignment ``align`` (one of
+    :data:`eval.metrics.ALIGN_MODES`, or None for none); None where it cannot be computed
+    (degenerate alignment, non-finite poses). An unknown ``align`` is an InputError, not None."""
     from vislam.ekf.errors import InputError
-    from vislam.eval.metrics import ate_rmse
+    from vislam.eval.metrics import ate_rmse, check_align_mode
+
+    if align is not None:
+        check_align_mode(align)
 
     try:
         return _finite_or_none(ate_rmse(est_poses, ref_poses, align=align))

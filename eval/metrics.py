@@ -3,8 +3,18 @@
 Poses are ``world_T_imu`` (T, 4, 4) in float64; every figure is vectorised over the trajectory.
 
 * ATE (absolute trajectory error): RMSE of position differences (m), raw or after a
-  least-squares alignment of the estimated positions onto the true ones (Umeyama 1991: SE(3),
-  or Sim(3) with scale). Same definition as evo's APE with ``PoseRelation.translation_part``.
+  least-squares alignment of the estimated positions onto the true ones. Same definition as
+  evo's APE with ``PoseRelation.translation_part``. The alignments (:data:`ALIGN_MODES`,
+  :func:`align_trajectory`, every command's ``--align``):
+
+  - ``se3``: rotation and translation (Umeyama 1991), 6 dof; the default.
+  - ``sim3``: rotation, translation and scale (Umeyama 1991), 7 dof.
+  - ``yaw``: rotation about the world z axis (gravity) and translation, 4 dof: what a
+    gravity-aligned visual-inertial estimate leaves unobservable (Zhang and Scaramuzza 2018, "A
+    Tutorial on Quantitative Trajectory Evaluation for Visual(-Inertial) Odometry";
+    rpg_trajectory_evaluation's ``align_posyaw``). Closed form, :func:`yaw_fit`. Roll and pitch
+    errors stay in the figure, as they should when gravity is observed.
+  - ``none``: the identity (the raw ATE).
 * RPE (relative pose error, evo's definition): for index pairs (i, j = i + delta), non-overlapping
   by default as in evo, ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` with Q the truth and P the estimate;
   RMSE of the translation norm of E (m) and of its rotation angle (deg).
@@ -27,6 +37,24 @@ from vislam.ekf.geometry import se3_inv, se3_log, vee
 
 #: Segment lengths (m) of the KITTI odometry benchmark.
 KITTI_LENGTHS = (100, 200, 300, 400, 500, 600, 700, 800)
+
+#: The trajectory alignments before an aligned ATE (see the module docstring); "se3" is the
+#: default everywhere.
+ALIGN_MODES = ("se3", "sim3", "yaw", "none")
+#: Each alignment mode in words, for the outputs that record which one was used.
+ALIGN_DESCRIPTIONS = {
+    "se3": "SE(3) alignment (rotation and translation)",
+    "sim3": "Sim(3) alignment (rotation, translation and scale)",
+    "yaw": "yaw-only 4-dof alignment (rotation about gravity, the world z axis, and translation)",
+    "none": "no alignment (equal to the raw ATE)",
+}
+
+
+def check_align_mode(mode) -> str:
+    """``mode`` if it is one of :data:`ALIGN_MODES`; an InputError naming it and them otherwise."""
+    if not isinstance(mode, str) or mode not in ALIGN_MODES:
+        raise InputError(f"alignment mode must be one of {', '.join(ALIGN_MODES)}, got {mode!r}")
+    return mode
 
 
 def _poses(x, what: str) -> np.ndarray:
@@ -94,16 +122,76 @@ def umeyama(
     return R, t, s
 
 
-def align_trajectory(est_poses, gt_poses, mode: str = "se3") -> np.ndarray:
-    """Estimated poses moved onto the ground truth by the Umeyama fit of their positions.
+def yaw_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray]:
+    """Least-squares ``(theta, t)`` minimising ``sum ||dst_i - (Rz(theta) src_i + t)||^2``, with
+    ``Rz(theta)`` the rotation by ``theta`` (rad) about the z axis: the 4-dof (position and yaw)
+    alignment of Zhang and Scaramuzza 2018 (rpg_trajectory_evaluation's ``align_posyaw``).
 
-    ``mode`` "se3" (rotation and translation) or "sim3" (also scale: positions are scaled, then
-    the rigid transform is applied to the whole pose, as evo does).
+    ``src``, ``dst`` (N, 3). Derivation: for any rotation the best translation is
+    ``t = mean(dst) - Rz mean(src)``, which leaves the centred points ``x_i = src_i - mean(src)``,
+    ``y_i = dst_i - mean(dst)``. ``Rz`` does not change z, so minimising ``sum ||y_i - Rz x_i||^2``
+    is maximising ``sum y_i . Rz x_i = cos(theta) B + sin(theta) A`` over the horizontal parts,
+    with::
+
+        A = sum_i (x_i,x y_i,y - x_i,y y_i,x)     (the cross terms)
+        B = sum_i (x_i,x y_i,x + x_i,y y_i,y)     (the dot terms)
+
+    whose maximum is at ``theta = atan2(A, B)`` (unique unless ``A = B = 0``). Degenerate input
+    (one pose, or no horizontal spread in either set, so that ``A = B = 0`` and every yaw fits
+    equally well): ``theta = 0``, a least-squares solution like any other, never NaN. Raises
+    :class:`InputError` for no points or non-finite ones.
+    """
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
+        raise InputError(f"yaw alignment: need two (N, 3) point sets, got {src.shape} and {dst.shape}")
+    if src.shape[0] < 1:
+        raise InputError("yaw alignment: need at least 1 pose, got none")
+    if not (np.all(np.isfinite(src)) and np.all(np.isfinite(dst))):
+        raise InputError("yaw alignment: points contain non-finite values")
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    x, y = src[:, :2] - mu_s[:2], dst[:, :2] - mu_d[:2]
+    A = float(np.sum(x[:, 0] * y[:, 1] - x[:, 1] * y[:, 0]))
+    B = float(np.sum(x[:, 0] * y[:, 0] + x[:, 1] * y[:, 1]))
+    # |A + iB| <= |x| |y| (Cauchy-Schwarz); below rounding of that bound the yaw is arbitrary.
+    scale = float(np.sqrt(np.sum(x * x) * np.sum(y * y)))
+    theta = float(np.arctan2(A, B)) if np.hypot(A, B) > 1e-13 * scale else 0.0
+    t = mu_d - _rot_z(theta) @ mu_s
+    return theta, t
+
+
+def _rot_z(theta: float) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def alignment_transform(est_poses, gt_poses, mode: str = "se3") -> tuple[np.ndarray, np.ndarray, float]:
+    """The ``(R, t, s)`` of :func:`align_trajectory`: ``gt ~ s R est + t`` for the positions
+    (``mode`` one of :data:`ALIGN_MODES`; identity for "none"). Raises :class:`InputError` for an
+    unknown mode or input the mode cannot align (see :func:`umeyama`, :func:`yaw_fit`)."""
+    est, gt = _pair(est_poses, gt_poses)
+    check_align_mode(mode)
+    if mode == "none":
+        return np.eye(3), np.zeros(3), 1.0
+    if mode == "yaw":
+        theta, t = yaw_fit(est[:, :3, 3], gt[:, :3, 3])
+        return _rot_z(theta), t, 1.0
+    return umeyama(est[:, :3, 3], gt[:, :3, 3], with_scale=mode == "sim3")
+
+
+def align_trajectory(est_poses, gt_poses, mode: str = "se3") -> np.ndarray:
+    """Estimated poses moved onto the ground truth by the least-squares fit of their positions.
+
+    ``mode`` (:data:`ALIGN_MODES`): "se3" (rotation and translation, Umeyama), "sim3" (also
+    scale: positions are scaled, then the rigid transform is applied to the whole pose, as evo
+    does), "yaw" (rotation about the world z axis and translation, :func:`yaw_fit`) or "none"
+    (an unchanged copy). An unknown mode is an :class:`InputError` naming the valid ones.
     """
     est, gt = _pair(est_poses, gt_poses)
-    if mode not in ("se3", "sim3"):
-        raise InputError(f"alignment mode must be 'se3' or 'sim3', got {mode!r}")
-    R, t, s = umeyama(est[:, :3, 3], gt[:, :3, 3], with_scale=mode == "sim3")
+    check_align_mode(mode)
+    if mode == "none":
+        return est.copy()
+    R, t, s = alignment_transform(est, gt, mode)
     out = est.copy()
     out[:, :3, :3] = R @ est[:, :3, :3]
     out[:, :3, 3] = s * est[:, :3, 3] @ R.T + t
@@ -114,7 +202,8 @@ def align_trajectory(est_poses, gt_poses, mode: str = "se3") -> np.ndarray:
 
 
 def ate_rmse(est_poses, gt_poses, align: str | None = None) -> float:
-    """Translation RMSE (m) of the absolute trajectory error, after optional alignment."""
+    """Translation RMSE (m) of the absolute trajectory error, after the alignment ``align`` (one
+    of :data:`ALIGN_MODES`; None is "none")."""
     est, gt = _pair(est_poses, gt_poses)
     if align is not None:
         est = align_trajectory(est, gt, align)
@@ -283,6 +372,10 @@ def trajectory_metrics(est, gt_poses, frames=None) -> dict:
         out[f"ate_{mode}_rmse_m"] = ate_rmse(est_p, gt, align=mode)
         if mode == "sim3":
             out["sim3_scale"] = s
+    try:
+        out["ate_yaw_rmse_m"] = ate_rmse(est_p, gt, align="yaw")
+    except InputError:
+        out["ate_yaw_rmse_m"] = None
     for delta in (1, 10):
         r = rpe(est_p, gt, delta=delta)
         out[f"rpe{delta}_trans_rmse_m"] = r["trans_rmse_m"]
