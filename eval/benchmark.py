@@ -8,7 +8,8 @@ folder and renamed into place at the end (:mod:`eval.atomic`).
 
 ``results.json`` (schema 1)::
 
-    {"schema": 1, "rpe_definition": ..., "reference": ..., "sequences": [
+    {"schema": 1, "rpe_definition": ..., "reference": ..., "alignment": "se3",
+     "alignment_definition": ..., "sequences": [
         {"name", "path", "frames", "has_ground_truth", "has_landmark_truth",
          "estimators": [
             {"name", "error", "runtime_s", "frames_per_s", "landmarks",
@@ -17,7 +18,10 @@ folder and renamed into place at the end (:mod:`eval.atomic`).
              "vs_smoother": {"ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean",
                              "inside_95_fraction"}}, ...]}, ...]}
 
-Every key is always present; a figure that cannot be computed is null. ``map_rmse_m`` and
+Every key is always present; a figure that cannot be computed is null. ``alignment`` is the
+alignment before every ``ate_aligned_m`` (against ground truth and against the smoother): one
+of :data:`eval.metrics.ALIGN_MODES` (``--align``; "se3" by default, and in files written before
+the key existed), ``alignment_definition`` says it in words. ``map_rmse_m`` and
 ``nees_landmark_mean`` compare with true landmarks (simulations only); ``vs_smoother`` compares
 with the smoother's estimate on the same sequence (null for the smoothers themselves).
 """
@@ -42,7 +46,14 @@ from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.sequence import Observations, Sequence
 from vislam.eval.consistency import reference_honesty
-from vislam.eval.registry import SMOOTHER_INITIAL_FROM, SMOOTHERS, uses_initial
+from vislam.eval.registry import (
+    SMOOTHER_INITIAL_FROM,
+    SMOOTHERS,
+    UserEstimatorError,
+    display_name,
+    file_stem,
+    uses_initial,
+)
 from vislam.eval.runjob import (
     RPE_DEFINITION,
     JobResult,
@@ -108,6 +119,9 @@ class JobFailure:
     estimator: str
     error: str
     wall_s: float = float("nan")
+    #: a user's estimator failed or broke the Estimate contract (registry.UserEstimatorError):
+    #: bad input, which stops the whole run (exit code 2), not one failed row
+    user_fault: bool = False
 
 
 # --- sequences -------------------------------------------------------------------------------
@@ -265,17 +279,23 @@ def identify_models(sequences: list[BenchSequence], config: FilterConfig,
 # --- jobs ------------------------------------------------------------------------------------
 
 
-def _job(seq: Sequence, key: str, name: str, config: FilterConfig, initial: Estimate | None,
+def _job(seq: Sequence, key: str, name, config: FilterConfig, initial: Estimate | None,
          smoother: SmootherSettings | None = None):
-    """Worker: one estimator on one sequence (module-level so worker processes can pickle it)."""
+    """Worker: one estimator (a name, ``MODULE:FUNCTION`` or a module-level callable) on one
+    sequence (module-level so worker processes can pickle it)."""
     t0 = time.perf_counter()
     try:
         result = run_estimator(seq, name, config, progress=None, initial=initial, smoother=smoother)
+    except UserEstimatorError as exc:
+        return JobFailure(key, display_name(name), str(exc), time.perf_counter() - t0,
+                          user_fault=True)
     except (EstimationError, ImportError) as exc:
-        return JobFailure(key, name, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+        return JobFailure(key, display_name(name), f"{type(exc).__name__}: {exc}",
+                          time.perf_counter() - t0)
     except Exception as exc:  # a crash of one estimator must not lose the whole benchmark
         log.debug("%s on %s crashed", name, key, exc_info=True)  # the traceback with -v
-        return JobFailure(key, name, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+        return JobFailure(key, display_name(name), f"{type(exc).__name__}: {exc}",
+                          time.perf_counter() - t0)
     result.sequence = key
     return result
 
@@ -353,6 +373,8 @@ def run_jobs(
     bar = Progress("bench", total=total, enabled=show_progress)
 
     def record(res) -> list[tuple[str, str, Estimate | None]]:
+        if isinstance(res, JobFailure) and res.user_fault:
+            raise UserEstimatorError(res.error)  # the user's code: stop, write nothing
         results[(res.sequence, res.estimator)] = res
         bar.update(1)
         if on_result is not None:
@@ -370,7 +392,7 @@ def run_jobs(
             queue = [(k, n, None) for k in sequences for n in order]
             while queue:
                 key, name, initial = queue.pop(0)
-                bar.set_description(f"running {name} on {key}")
+                bar.set_description(f"running {display_name(name)} on {key}")
                 queue.extend(record(_job(sequences[key], key, name, configs[key], initial, smoother)))
             return results
         # Signals are deferred while the pool is managed (an exception inside its locks would
@@ -382,7 +404,7 @@ def run_jobs(
 
                 def submit(key, name, initial) -> cf.Future:
                     fut = pool.submit(_job, sequences[key], key, name, configs[key], initial, smoother)
-                    labels[fut] = f"{name} on {key}"
+                    labels[fut] = f"{display_name(name)} on {key}"
                     return fut
 
                 pending = {submit(k, n, None) for k in sequences for n in order}
@@ -411,8 +433,10 @@ def reference_smoother(ests: dict[str, Estimate]) -> str | None:
     return next((n for n in SMOOTHERS if n in ests), None)
 
 
-def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict) -> dict:
-    """The results.json entry of one sequence (see the module docstring)."""
+def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict,
+                   align: str = "se3") -> dict:
+    """The results.json entry of one sequence (see the module docstring); ``align`` the
+    alignment before every aligned ATE (eval.metrics.ALIGN_MODES)."""
     from vislam.eval.consistency import landmark_nees, landmark_rmse, versus_smoother
 
     ests = {n: o.estimate for n, o in outcomes.items() if isinstance(o, JobResult)}
@@ -431,7 +455,7 @@ def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict) -> 
         row["runtime_s"] = o.wall_s
         row["frames_per_s"] = est.n_frames / o.wall_s if o.wall_s > 0 else None
         row["landmarks"] = int(np.count_nonzero(est.has_landmark))
-        scores = trajectory_scores(est, bs.gt)
+        scores = trajectory_scores(est, bs.gt, align=align)
         for k in ("ate_m", "ate_aligned_m", "rpe_trans_pct", "rpe_rot_deg_per_100m", "nees_pose_mean"):
             row[k] = scores[k]
         if bs.landmark_truth is not None and row["landmarks"]:
@@ -440,7 +464,7 @@ def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict) -> 
             if np.any(np.isfinite(nees)):
                 row["nees_landmark_mean"] = float(np.nanmean(nees))
         if ref is not None and name not in SMOOTHERS:
-            row["vs_smoother"] = versus_smoother(est, ests[ref])
+            row["vs_smoother"] = versus_smoother(est, ests[ref], align=align)
         rows.append(row)
     return {
         "name": bs.name,
@@ -546,8 +570,10 @@ def summary_markdown(results: dict) -> str:
     (:func:`readings`), and a table of the columns that have a value on some row."""
     lines = ["# vislam benchmark", ""]
     lines.append(f"RPE: {results['rpe_definition']}.")
+    align = _alignment_words(results)
+    lines.append(f"ATE al.: the ATE after {align}.")
     lines.append("vs smoother: the estimator against the smoother's estimate on the same data "
-                 "(ATE after SE(3) alignment; map RMSE over tracks both estimated; pose NEES of "
+                 f"(ATE after {align}; map RMSE over tracks both estimated; pose NEES of "
                  "the difference under the estimator's own covariance, and the share of steps "
                  "inside chi2.ppf(0.95, 6)).")
     lines.append("")
@@ -567,6 +593,14 @@ def summary_markdown(results: dict) -> str:
         lines += ["| " + " | ".join(cells).rstrip() + " |" for cells in rows]
         lines.append("")
     return "\n".join(lines)
+
+
+def _alignment_words(results: dict) -> str:
+    """The alignment of the results' aligned ATEs in words (SE(3) when not recorded)."""
+    from vislam.eval.metrics import ALIGN_DESCRIPTIONS
+
+    mode = results.get("alignment") or "se3"
+    return ALIGN_DESCRIPTIONS.get(mode, f"{mode} alignment")
 
 
 def sequence_table(s: dict) -> tuple[list[str], list[list[str]]]:
@@ -705,14 +739,18 @@ def run_benchmark(
     smoother: SmootherSettings | None = None,
     force: bool = False,
     extra_inputs: tuple = (),
+    align: str = "se3",
 ) -> BenchOutput:
     """Run, score, plot and write everything into ``out_dir``; ``smoother`` the smoothers'
-    settings (defaults when None). The folder is checked before the first job starts and
-    written as :mod:`eval.output_dir` says (``force``: write beside files vislam did not write,
-    never over them)."""
+    settings (defaults when None); ``align`` the alignment before every aligned ATE
+    (eval.metrics.ALIGN_MODES, recorded as results.json's ``alignment``). The folder is checked
+    before the first job starts and written as :mod:`eval.output_dir` says (``force``: write
+    beside files vislam did not write, never over them)."""
     from vislam.eval.atomic import atomic_symlink
+    from vislam.eval.metrics import check_align_mode
     from vislam.eval.output_dir import OutputDir
 
+    check_align_mode(align)
     t0 = time.perf_counter()
     by_key = {bs.name: bs.sequence for bs in sequences}
     smoother = smoother if smoother is not None else SmootherSettings()
@@ -726,7 +764,7 @@ def run_benchmark(
         with deferred():  # a signal waits until the files are written (matplotlib's C code
             # must not be cut short), then ends the command and the staging folder goes
             results, summary = _write_results(tmp, sequences, estimators, outcomes, config, jobs,
-                                              smoother, settings, t0)
+                                              smoother, settings, t0, align=align)
     if latest_link is not None:
         atomic_symlink(Path(out_dir).name, latest_link)
     failures = [f"{s['name']} {r['name']}: {r['error']}"
@@ -735,9 +773,10 @@ def run_benchmark(
 
 
 def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smoother, settings,
-                   t0: float) -> tuple[dict, str]:
+                   t0: float, align: str = "se3") -> tuple[dict, str]:
     from vislam.eval.atomic import write_json, write_text
     from vislam.eval.export import write_tum
+    from vislam.eval.metrics import ALIGN_DESCRIPTIONS
     from vislam.eval.report import report_html
 
     results = {
@@ -745,17 +784,19 @@ def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smo
         "rpe_definition": RPE_DEFINITION,
         "reference": "vs_smoother compares with the batch smoother ('smoother'), or with "
                      "'smoother-isam2' when only that ran",
+        "alignment": align,
+        "alignment_definition": f"ate_aligned_m (ATE al.): the ATE after {ALIGN_DESCRIPTIONS[align]}",
         "estimators": list(estimators),
         "sequences": [],
     }
     for bs in sequences:
         outs = {n: outcomes[(bs.name, n)] for n in estimators if (bs.name, n) in outcomes}
-        results["sequences"].append(score_sequence(bs, estimators, outs))
+        results["sequences"].append(score_sequence(bs, estimators, outs, align=align))
         ests = {n: o.estimate for n, o in outs.items() if isinstance(o, JobResult)}
         folder = tmp / bs.name
         for name, est in ests.items():
-            write_tum(folder / f"{name}.tum", est.timestamps, est.poses)
-            _save_estimate(folder / f"{name}.estimate.npz", est)
+            write_tum(folder / f"{file_stem(name)}.tum", est.timestamps, est.poses)
+            _save_estimate(folder / f"{file_stem(name)}.estimate.npz", est)
         sequence_figures(folder, bs, ests)
     results["wall_s"] = time.perf_counter() - t0
     summary = summary_markdown(results)
@@ -765,6 +806,7 @@ def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smo
     write_json(tmp / "settings.json", {
         "estimators": list(estimators),
         "jobs": jobs,
+        "alignment": align,
         "filter": config.to_dict(),
         "smoother": smoother.to_dict(),
         "sequences": [{"name": b.name, "path": b.path, **(b.origin or {}),
@@ -876,10 +918,11 @@ def monte_carlo_nees(
     seqs = {f"run{i:03d}": redraw_noise(truth, sim_config, np.random.default_rng([seed, i]))
             for i in range(runs)}
 
-    pose = {n: np.full((runs, T), np.nan) for n in estimators}
-    landmark = {n: np.full((runs, truth.landmarks.shape[0]), np.nan) for n in estimators}
-    runtime = {n: [] for n in estimators}
-    errors: dict[str, list[str]] = {n: [] for n in estimators}
+    names = [display_name(e) for e in estimators]  # a user's callable by MODULE:FUNCTION
+    pose = {n: np.full((runs, T), np.nan) for n in names}
+    landmark = {n: np.full((runs, truth.landmarks.shape[0]), np.nan) for n in names}
+    runtime = {n: [] for n in names}
+    errors: dict[str, list[str]] = {n: [] for n in names}
     frames_all = np.arange(T)
 
     def reduce(res) -> None:  # keep only the NEES arrays, not every estimate
@@ -910,7 +953,7 @@ def monte_carlo_nees(
         "smoother": smoother.to_dict(),
         "estimators": {},
     }
-    for n in estimators:
+    for n in names:
         p = anees(pose[n][:, 1:], POSE_DOF)
         lm_ok = np.any(np.isfinite(landmark[n]), axis=0)
         lm = anees(landmark[n][:, lm_ok], LANDMARK_DOF) if np.any(lm_ok) else None

@@ -20,7 +20,7 @@ EXIT_FAILURES = 3
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from vislam.eval.benchmark import DEFAULT_BENCH_FRAMES
     from vislam.eval.registry import DEFAULT_BENCH, ESTIMATOR_NAMES
-    from vislam.eval.runjob import add_filter_arguments
+    from vislam.eval.runjob import add_align_argument, add_filter_arguments
 
     parser.add_argument("paths", nargs="*", metavar="PATH", help=".npz files or folders of them")
     parser.add_argument("--out", "-o", metavar="DIR",
@@ -29,8 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write into a non-empty folder vislam did not write (its files are "
                              "never replaced)")
     parser.add_argument("--estimators", "-e", metavar="LIST",
-                        help=f"comma-separated, or 'all' (default: {','.join(DEFAULT_BENCH)}; "
-                             f"all: {','.join(ESTIMATOR_NAMES)})")
+                        help=f"comma-separated names, or MODULE:FUNCTION for a user's estimator "
+                             f"(eval/registry.py), or 'all' (default: {','.join(DEFAULT_BENCH)}; "
+                             f"all: {','.join(ESTIMATOR_NAMES)} and installed plug-ins)")
     parser.add_argument("--jobs", "-j", type=int, default=None, metavar="N",
                         help="worker processes (default: number of CPUs)")
     parser.add_argument("--frames", type=int, default=None, metavar="N",
@@ -43,6 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "cached by content, see 'vislam calibrate'), the default; as-given: "
                              "the file's extrinsic and the settings as given (the paper's). A "
                              "[model] table in --config is used as it is")
+    add_align_argument(parser)
     add_filter_arguments(parser)
 
 
@@ -100,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         settings={**environment_settings(), "model_mode": "config" if model is not None
                   else args.model},
         latest_link=latest, smoother=smoother, force=args.force,
-        extra_inputs=(args.config,),
+        extra_inputs=(args.config,), align=getattr(args, "align", "se3"),
     )
     if not args.quiet:
         print(result.summary)

@@ -37,7 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--runs", "-n", type=int, required=True, metavar="N", help="Monte Carlo runs")
     parser.add_argument("--seed", type=int, default=0, help="seed of the drive (and of the noise)")
     parser.add_argument("--estimators", "-e", metavar="LIST",
-                        help=f"comma-separated, or 'all' (default: {','.join(NEES_DEFAULT)})")
+                        help=f"comma-separated names or MODULE:FUNCTION (a user's estimator, "
+                             f"eval/registry.py), or 'all' (default: {','.join(NEES_DEFAULT)})")
     parser.add_argument("--jobs", "-j", type=int, default=None, metavar="N",
                         help="worker processes (default: number of CPUs)")
     parser.add_argument("--frames", type=int, default=None, metavar="N",

@@ -34,7 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", metavar="FILE.npz", help="the sequence (.npz data file)")
     parser.add_argument(
         "--estimator", "-e", required=True, metavar="NAME",
-        help=f"one of: {', '.join(ESTIMATOR_NAMES)}",
+        help=f"one of: {', '.join(ESTIMATOR_NAMES)}, an installed plug-in, or MODULE:FUNCTION "
+             "(a user's estimator, eval/registry.py)",
     )
     parser.add_argument("--out", "-o", required=True, metavar="DIR",
                         help="output folder: new, empty, or written by vislam before")
@@ -46,8 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-plots", dest="plots", action="store_false",
                         help="write no plots (by default: trajectories.png, map.png and, with "
                              "ground truth, error_over_distance.png and nees.png)")
-    from vislam.eval.runjob import add_filter_arguments
+    from vislam.eval.runjob import add_align_argument, add_filter_arguments
 
+    add_align_argument(parser)
     add_filter_arguments(parser)
 
 
@@ -129,7 +131,7 @@ def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path, *, pl
         "landmarks": int(np.count_nonzero(est.has_landmark)),
         "numerical_rejections": int(est.info.get("numerical_rejections", 0)),
         "has_ground_truth": gt is not None,
-        **trajectory_scores(est, gt),
+        **trajectory_scores(est, gt, align=getattr(args, "align", "se3")),
         "rpe_definition": RPE_DEFINITION,
     }
     settings = {
@@ -139,6 +141,7 @@ def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path, *, pl
         "model": None if model is None else model.to_dict(),
         "estimator": args.estimator,
         "filter": config.to_dict(),
+        "alignment": metrics["alignment"],
         **({"smoother": smoother.to_dict()} if args.estimator.startswith("smoother") else {}),
         **environment_settings(),
     }
@@ -162,7 +165,8 @@ def _summary_line(m: dict, out: str) -> str:
 
     return (
         f"{m['estimator']} on {m['sequence']}: {m['frames']} frames in {m['runtime_s']:.2f} s; "
-        f"ATE {fmt(m['ate_m'], ' m')} (aligned {fmt(m['ate_aligned_m'], ' m')}), "
+        f"ATE {fmt(m['ate_m'], ' m')} (aligned, {m.get('alignment', 'se3')}: "
+        f"{fmt(m['ate_aligned_m'], ' m')}), "
         f"pose NEES {fmt(m['nees_pose_mean'])}; wrote {out}"
     )
 

@@ -1,0 +1,59 @@
+"""vislam's own estimators under the estimator protocol (:mod:`vislam.eval.registry`).
+
+Each is a callable ``(seq, settings) -> Estimate``, registered in ``pyproject.toml`` as an entry
+point of the group ``vislam.estimators``: the same mechanism and the same contract as a user's
+estimator. The EKFs' modules (numpy and scipy only) and GTSAM are imported only when an
+estimator runs, so ``vislam run -e ekf-joint`` never imports GTSAM.
+"""
+
+from __future__ import annotations
+
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.sequence import Sequence
+
+
+def _ekf(name: str, seq: Sequence, settings) -> Estimate:
+    from vislam.ekf.estimators import ESTIMATORS
+
+    return ESTIMATORS[name](seq, settings.filter, settings.progress)
+
+
+def dead_reckoning(seq: Sequence, settings) -> Estimate:
+    """Velocities only (the paper's prediction step, no vision)."""
+    return _ekf("dead-reckoning", seq, settings)
+
+
+def mapping(seq: Sequence, settings) -> Estimate:
+    """Dead-reckoned poses, landmarks mapped from them (no pose update)."""
+    return _ekf("mapping", seq, settings)
+
+
+def ekf_decoupled(seq: Sequence, settings) -> Estimate:
+    """The paper's Algorithm 1 as written: pose and landmarks updated apart."""
+    return _ekf("ekf-decoupled", seq, settings)
+
+
+def ekf_joint(seq: Sequence, settings) -> Estimate:
+    """Pose and active landmarks in one state, with their cross-covariance."""
+    return _ekf("ekf-joint", seq, settings)
+
+
+def ekf_invariant(seq: Sequence, settings) -> Estimate:
+    """The right-invariant EKF on SE_K(3)."""
+    return _ekf("ekf-invariant", seq, settings)
+
+
+def smoother(seq: Sequence, settings) -> Estimate:
+    """GTSAM batch smoother (Levenberg-Marquardt over the whole drive); starts from
+    ``settings.initial`` when given (the benchmark passes the EKF's estimate)."""
+    from vislam.graph.smoother import run_smoother
+
+    return run_smoother(seq, settings.filter, initial=settings.initial,
+                        progress=settings.progress, settings=settings.smoother)
+
+
+def smoother_isam2(seq: Sequence, settings) -> Estimate:
+    """GTSAM iSAM2, one frame at a time."""
+    from vislam.graph.isam2 import run_isam2
+
+    return run_isam2(seq, settings.filter, progress=settings.progress, settings=settings.smoother)
