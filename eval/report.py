@@ -57,6 +57,8 @@ def report_html(results: dict, folder: Path) -> str:
              "<title>vislam benchmark</title>", f"<style>{_STYLE}</style>",
              f"<script>{_IMAGES_LOADED}</script></head><body>", "<h1>vislam benchmark</h1>",
              f"<p>RPE: {html.escape(results['rpe_definition'])}.</p>"]
+    if results.get("alignment_definition"):
+        parts.append(f"<p>{html.escape(results['alignment_definition'])}.</p>")
     for s in results["sequences"]:
         gt = "ground truth" if s["has_ground_truth"] else "no ground truth"
         parts.append(f"<h2>{html.escape(s['name'])} ({s['frames']} frames, {gt})</h2>")
