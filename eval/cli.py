@@ -30,6 +30,7 @@ COMMANDS = {
     "bench": ("bench", "run every estimator on every sequence and compare"),
     "nees": ("nees", "Monte Carlo consistency (NEES) on the simulator"),
     "calibrate": ("calibrate", "identify the noise model of a drive from the data (no ground truth)"),
+    "score": ("score", "score a trajectory made elsewhere against ground truth and the smoother"),
 }
 
 

@@ -3,6 +3,13 @@
 * TUM format (``evo``, the TUM RGB-D benchmark): one line per pose,
   ``timestamp tx ty tz qx qy qz qw`` (quaternion scalar last, as scipy's ``Rotation.as_quat``).
 * KITTI odometry format: one line per pose, the 3x4 matrix ``[R | t]`` row-major (12 numbers).
+* EuRoC CSV (:func:`read_euroc`, :func:`write_euroc`): ``timestamp [ns], p_x, p_y, p_z, q_w,
+  q_x, q_y, q_z[, ...]`` (quaternion scalar first; EuRoC's ground truth, OpenVINS).
+* Checked readers for files made by other tools (:func:`read_tum_checked`,
+  :func:`read_kitti_checked`, :func:`read_euroc`) and pose covariances
+  (:func:`read_pose_covariances`: a vislam ``.estimate.npz``, a ``.npy`` (N, 6, 6) or text
+  lines ``t`` + 36 numbers): every fault a one-line InputError naming the file and line.
+  :func:`read_tum` and :func:`read_kitti` stay the plain readers they were.
 * :func:`save_npz_reproducible`: ``numpy.savez_compressed`` stamps every zip member with the
   current time, so writing the same arrays twice gives different bytes; this writer fixes the
   member time and compression level so the same arrays always give the same file.
@@ -16,6 +23,7 @@ import io
 import os
 import tempfile
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping
 
@@ -141,3 +149,355 @@ def read_kitti(path: str | os.PathLike) -> np.ndarray:
     """Read a KITTI pose file (12 columns): poses (T, 4, 4)."""
     rows = _read_rows(path, 12)
     return _to_4x4(rows.reshape(-1, 3, 4))
+
+
+# --- checked readers: trajectories and covariances made by other tools -------------------------
+#
+# The readers below check every line and raise a one-line InputError naming the file and the
+# line (or entry) at the first fault. Lines that are blank or start with "#" are skipped.
+# Poses are ``world_T_body`` (T, 4, 4); times in seconds.
+
+#: Largest text file read by the checked readers (about a million TUM lines is 100 MB).
+MAX_TEXT_BYTES = 256 * 2**20
+#: How far a quaternion's norm may be from 1 (files written with 4 or more digits); a
+#: quaternion within it is normalised, one beyond it is an error.
+QUATERNION_NORM_TOL = 1e-3
+#: Orthonormality tolerance of a KITTI line's rotation (files carry ~7 digits).
+ROTATION_TOL = 1e-4
+#: Largest translation accepted in a pose line, m (larger values are not metres).
+MAX_TRANSLATION = 1e7
+#: How far from symmetric a covariance may be, relative to sqrt(C_ii C_jj) (text with 7 digits).
+SYMMETRY_TOL = 1e-6
+
+_TUM_COLUMNS = "t x y z qx qy qz qw"
+_EUROC_COLUMNS = "timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z"
+
+
+def _text_lines(path: str | os.PathLike, what: str, delimiter: str | None = None):
+    """(line number, fields) of every line of the text file ``path`` that is neither blank nor
+    a ``#`` comment; fields split at ``delimiter`` (whitespace when None) and stripped."""
+    from vislam.eval.loader import check_regular_file, open_for_reading
+
+    path = Path(path)
+    check_regular_file(path, what)
+    with open_for_reading(path, what) as fh:
+        try:
+            size = os.fstat(fh.fileno()).st_size
+            data = fh.read(min(size, MAX_TEXT_BYTES) + 1)
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    if len(data) > MAX_TEXT_BYTES:
+        raise InputError(f"{path}: {what} is larger than {MAX_TEXT_BYTES} bytes; not a {what}?")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise InputError(f"{path}: line {line}: {what} is not UTF-8 text (byte "
+                         f"0x{data[exc.start]:02x} at offset {exc.start})") from None
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        if delimiter is None:
+            fields = stripped.split()
+        else:
+            fields = [f.strip() for f in stripped.split(delimiter)]
+            if fields and fields[-1] == "":  # a trailing delimiter
+                fields.pop()
+        yield number, fields
+
+
+def _numbers(path, number: int, fields: list[str]) -> list[float]:
+    """The fields of line ``number`` as finite floats; InputError naming the bad value."""
+    values = []
+    for f in fields:
+        try:
+            x = float(f)
+        except ValueError:
+            raise InputError(f"{path}: line {number}: not a number: {f[:40]!r}") from None
+        if not np.isfinite(x):
+            raise InputError(f"{path}: line {number}: {f!r} is not a finite number")
+        values.append(x)
+    return values
+
+
+def _column_error(path, number: int, got: int, expected: str, hint: str = "") -> InputError:
+    return InputError(f"{path}: line {number} has {got} columns, expected {expected}{hint}")
+
+
+def _check_increasing(path, times: np.ndarray, lines: np.ndarray) -> None:
+    bad = np.flatnonzero(~(np.diff(times) > 0))
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise InputError(f"{path}: line {int(lines[i])}: time {times[i]!r} is not after the "
+                         f"previous line's {times[i - 1]!r} (timestamps must increase)")
+
+
+def _check_translations(path, t: np.ndarray, lines: np.ndarray) -> None:
+    big = np.flatnonzero(np.max(np.abs(t), axis=1) > MAX_TRANSLATION)
+    if big.size:
+        i = int(big[0])
+        raise InputError(f"{path}: line {int(lines[i])}: translation "
+                         f"{float(np.max(np.abs(t[i]))):.6g} m is beyond {MAX_TRANSLATION:g} m "
+                         "(not metres?)")
+
+
+def quaternion_rotations(path, q_xyzw: np.ndarray, lines: np.ndarray) -> np.ndarray:
+    """Rotation matrices (N, 3, 3) of quaternions (N, 4) in scalar-last order, each normalised;
+    a zero quaternion or one whose norm is more than :data:`QUATERNION_NORM_TOL` from 1 is an
+    InputError naming its line."""
+    q = np.asarray(q_xyzw, dtype=float).reshape(-1, 4)
+    norm = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(~(np.abs(norm - 1.0) <= QUATERNION_NORM_TOL))
+    if bad.size:
+        i = int(bad[0])
+        what = ("zero quaternion" if norm[i] == 0 else
+                f"quaternion of norm {norm[i]:.6g}, not a unit quaternion")
+        raise InputError(f"{path}: line {int(lines[i])}: {what} (norm must be 1 within "
+                         f"{QUATERNION_NORM_TOL:g})")
+    if q.shape[0] == 0:
+        return np.zeros((0, 3, 3))
+    return Rotation.from_quat(q / norm[:, None]).as_matrix()
+
+
+def _poses_from(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    out = np.tile(np.eye(4), (R.shape[0], 1, 1))
+    out[:, :3, :3] = R
+    out[:, :3, 3] = t
+    return out
+
+
+def read_tum_checked(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A TUM trajectory ``t x y z qx qy qz qw`` (what :func:`write_tum` and evo write), every
+    line checked: times (T,) strictly increasing, poses (T, 4, 4) and the line numbers (T,).
+    Unlike :func:`read_tum`, every fault is a one-line InputError naming the line."""
+    rows, lines = [], []
+    for number, fields in _text_lines(path, "TUM trajectory file"):
+        if len(fields) != 8:
+            hint = ("; a KITTI pose file? give --format kitti" if len(fields) == 12 else
+                    "; an EuRoC CSV file? give --format euroc" if "," in fields[0] else "")
+            raise _column_error(path, number, len(fields), f"8 ({_TUM_COLUMNS})", hint)
+        rows.append(_numbers(path, number, fields))
+        lines.append(number)
+    if not rows:
+        raise InputError(f"{path}: TUM trajectory file has no pose lines")
+    data, lines = np.asarray(rows), np.asarray(lines, dtype=np.int64)
+    _check_increasing(path, data[:, 0], lines)
+    _check_translations(path, data[:, 1:4], lines)
+    R = quaternion_rotations(path, data[:, 4:8], lines)
+    return data[:, 0].copy(), _poses_from(R, data[:, 1:4]), lines
+
+
+def read_kitti_checked(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """A KITTI pose file (12 numbers per line, the 3x4 ``[R | t]`` row-major, no times), every
+    line checked (12 columns, finite, the rotation orthonormal with determinant +1 within
+    :data:`ROTATION_TOL`): poses (T, 4, 4) and line numbers (T,)."""
+    from vislam.ekf.geometry import is_rigid
+
+    rows, lines = [], []
+    for number, fields in _text_lines(path, "KITTI pose file"):
+        if len(fields) != 12:
+            hint = "; a TUM file? give --format tum" if len(fields) == 8 else ""
+            raise _column_error(path, number, len(fields), "12 (the 3x4 pose, row-major)", hint)
+        rows.append(_numbers(path, number, fields))
+        lines.append(number)
+    if not rows:
+        raise InputError(f"{path}: KITTI pose file has no pose lines")
+    lines = np.asarray(lines, dtype=np.int64)
+    poses = _to_4x4(np.asarray(rows).reshape(-1, 3, 4))
+    _check_translations(path, poses[:, :3, 3], lines)
+    for i in range(poses.shape[0]):
+        if not is_rigid(poses[i], tol=ROTATION_TOL):
+            raise InputError(f"{path}: line {int(lines[i])}: the rotation is not orthonormal "
+                             "with determinant +1")
+    return poses, lines
+
+
+def read_euroc(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An EuRoC-style CSV trajectory (EuRoC's state ground truth, OpenVINS and others):
+    ``timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z[, ...]`` (times in nanoseconds,
+    quaternion scalar first; further columns, e.g. velocities and biases, are ignored; lines
+    starting with ``#`` are headers). Returns times in seconds (T,) strictly increasing, poses
+    (T, 4, 4) and line numbers (T,); every fault is a one-line InputError naming the line."""
+    times, rows, lines = [], [], []
+    for number, fields in _text_lines(path, "EuRoC CSV file", delimiter=","):
+        if len(fields) < 8:
+            hint = "; a TUM file? give --format tum" if len(fields) == 1 else ""
+            raise _column_error(path, number, len(fields), f"at least 8 ({_EUROC_COLUMNS})", hint)
+        stamp = fields[0]
+        try:
+            t = int(stamp) / 10**9  # integer nanoseconds: exact division, correctly rounded
+        except ValueError:
+            t = _numbers(path, number, [stamp])[0] / 1e9
+        rows.append(_numbers(path, number, fields[1:8]))
+        times.append(t)
+        lines.append(number)
+    if not rows:
+        raise InputError(f"{path}: EuRoC CSV file has no pose lines")
+    data, lines = np.asarray(rows), np.asarray(lines, dtype=np.int64)
+    times = np.asarray(times, dtype=float)
+    _check_increasing(path, times, lines)
+    _check_translations(path, data[:, 0:3], lines)
+    R = quaternion_rotations(path, data[:, [4, 5, 6, 3]], lines)  # w x y z -> x y z w
+    return times, _poses_from(R, data[:, 0:3]), lines
+
+
+def write_euroc(path: str | os.PathLike, timestamps: np.ndarray, poses: np.ndarray) -> Path:
+    """Write poses (T, 4, 4) with their times (T,, seconds) as an EuRoC CSV (header line, then
+    ``timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z``; times rounded to whole ns)."""
+    poses = _check_poses(poses, str(path))
+    timestamps = np.asarray(timestamps, dtype=float).reshape(-1)
+    if timestamps.size != poses.shape[0]:
+        raise InputError(
+            f"{path}: {timestamps.size} timestamps for {poses.shape[0]} poses; they must match"
+        )
+    q = Rotation.from_matrix(poses[:, :3, :3]).as_quat()
+    lines = ["#timestamp [ns],p_x [m],p_y [m],p_z [m],q_w [],q_x [],q_y [],q_z []"]
+    for t, p, qq in zip(timestamps, poses[:, :3, 3], q):
+        numbers = [*p, qq[3], qq[0], qq[1], qq[2]]
+        lines.append(",".join([str(round(t * 1e9))] + [repr(float(x)) for x in numbers]))
+    text = "\n".join(lines) + "\n"
+    return atomic_write(path, lambda fh: fh.write(text.encode()))
+
+
+# --- pose covariances ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PoseCovariances:
+    """Pose covariances read from a file: ``cov`` (N, 6, 6) in vislam's convention (the
+    covariance of ``xi = [rho; phi]``, translation first, m and rad, in a right perturbation
+    ``world_T_body_true = world_T_body_est @ se3_exp(xi)``); ``times`` (N,) seconds, or None
+    for a file without times (then entry i belongs to pose i of the trajectory);
+    ``kind`` "estimate" (a vislam ``.estimate.npz``), "npy" or "text"; ``rows`` how each entry
+    is named in messages ("line 7", "entry 3")."""
+
+    path: str
+    kind: str
+    cov: np.ndarray
+    times: np.ndarray | None
+    rows: tuple[str, ...]
+
+
+def read_pose_covariances(path: str | os.PathLike) -> PoseCovariances:
+    """Pose covariances (see :class:`PoseCovariances` for the convention) from
+
+    * a vislam estimate ``<estimator>.estimate.npz`` (``Estimate.save_npz``, as ``vislam
+      bench`` and ``vislam run`` write it): its ``pose_cov`` with its ``timestamps``;
+    * a ``.npy`` array (N, 6, 6), entry i for pose i of the trajectory (no times);
+    * a text file, per line ``timestamp`` and the 36 numbers of the 6x6 matrix, row-major.
+
+    Every matrix is checked: finite, symmetric (within :data:`SYMMETRY_TOL` relative) and
+    positive definite (Cholesky); a fault is a one-line InputError naming the file and the
+    line or entry. Text times must increase."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        times, cov = _covariances_npz(path)
+        rows = tuple(f"entry {i}" for i in range(cov.shape[0]))
+        kind = "estimate"
+    elif suffix == ".npy":
+        cov, times = _covariances_npy(path), None
+        rows = tuple(f"entry {i}" for i in range(cov.shape[0]))
+        kind = "npy"
+    else:
+        times, cov, lines = _covariances_text(path)
+        rows = tuple(f"line {n}" for n in lines)
+        kind = "text"
+    check_covariances(path, cov, rows)
+    return PoseCovariances(str(path), kind, cov, times, rows)
+
+
+def check_covariances(path, cov: np.ndarray, rows) -> None:
+    """InputError naming ``path`` and the row (``rows[i]``) of the first 6x6 matrix of ``cov``
+    that is not finite, not symmetric or not positive definite."""
+    cov = np.asarray(cov, dtype=float)
+    n = cov.shape[0]
+    flat = cov.reshape(n, -1)
+    bad = np.flatnonzero(~np.all(np.isfinite(flat), axis=1))
+    if bad.size:
+        raise InputError(f"{path}: {rows[int(bad[0])]}: covariance has a NaN or infinite value")
+    d = np.sqrt(np.abs(np.einsum("nii->ni", cov)))
+    scale = d[:, :, None] * d[:, None, :]
+    asym = np.abs(cov - np.swapaxes(cov, 1, 2))
+    bad = np.flatnonzero(np.any(asym > SYMMETRY_TOL * scale + 1e-300, axis=(1, 2)))
+    if bad.size:
+        i = int(bad[0])
+        j, k = np.unravel_index(int(np.argmax(asym[i] - SYMMETRY_TOL * scale[i])), (6, 6))
+        raise InputError(f"{path}: {rows[i]}: covariance is not symmetric (element ({j},{k}) "
+                         f"{cov[i, j, k]:.6g}, ({k},{j}) {cov[i, k, j]:.6g})")
+    for i in range(n):
+        try:
+            np.linalg.cholesky(0.5 * (cov[i] + cov[i].T))
+        except np.linalg.LinAlgError:
+            low = float(np.linalg.eigvalsh(0.5 * (cov[i] + cov[i].T))[0])
+            raise InputError(f"{path}: {rows[i]}: covariance is not positive definite "
+                             f"(smallest eigenvalue {low:.3g})") from None
+
+
+def _covariances_npz(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    from vislam.eval.loader import read_npz
+
+    d = read_npz(path, ("pose_cov", "timestamps"))
+    missing = [k for k in ("pose_cov", "timestamps") if k not in d]
+    if missing:
+        raise InputError(f"{path}: no {missing[0]!r} array; expected a vislam estimate file "
+                         "(<estimator>.estimate.npz, written by vislam bench / vislam run)")
+    cov, times = np.asarray(d["pose_cov"]), np.asarray(d["timestamps"])
+    if cov.ndim != 3 or cov.shape[1:] != (6, 6) or times.shape != (cov.shape[0],):
+        raise InputError(f"{path}: pose_cov has shape {cov.shape} and timestamps "
+                         f"{times.shape}; expected (N, 6, 6) and (N,)")
+    if not np.issubdtype(cov.dtype, np.number) or np.iscomplexobj(cov):
+        raise InputError(f"{path}: pose_cov is of type {cov.dtype}, not real numbers")
+    times = times.astype(float)
+    if not np.all(np.isfinite(times)):
+        raise InputError(f"{path}: timestamps hold a NaN or infinite value")
+    bad = np.flatnonzero(~(np.diff(times) > 0))
+    if bad.size:
+        raise InputError(f"{path}: timestamps do not increase at entry {int(bad[0]) + 1}")
+    return times, cov.astype(float)
+
+
+def _covariances_npy(path: Path) -> np.ndarray:
+    from vislam.eval.loader import check_regular_file, max_array_bytes
+
+    check_regular_file(path, ".npy file")
+    limit = max_array_bytes(path)
+    if os.path.getsize(path) > limit + 10000:
+        raise InputError(f"{path}: larger than {limit} bytes; not a covariance array?")
+    try:
+        cov = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise InputError(f"{path}: not a readable .npy array ({' '.join(str(exc).split())[:120]})") from None
+    if not isinstance(cov, np.ndarray) or cov.ndim != 3 or cov.shape[1:] != (6, 6):
+        raise InputError(f"{path}: array has shape {getattr(cov, 'shape', None)}; expected "
+                         "(N, 6, 6), one 6x6 pose covariance per trajectory pose")
+    if not np.issubdtype(cov.dtype, np.number) or np.iscomplexobj(cov):
+        raise InputError(f"{path}: array is of type {cov.dtype}, not real numbers")
+    return cov.astype(float)
+
+
+def _covariances_text(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rows, lines = [], []
+    for number, fields in _text_lines(path, "covariance file"):
+        if len(fields) != 37:
+            raise _column_error(path, number, len(fields),
+                                "37 (timestamp and the 6x6 covariance, row-major)")
+        rows.append(_numbers(path, number, fields))
+        lines.append(number)
+    if not rows:
+        raise InputError(f"{path}: covariance file has no lines")
+    data, lines = np.asarray(rows), np.asarray(lines, dtype=np.int64)
+    _check_increasing(path, data[:, 0], lines)
+    return data[:, 0].copy(), data[:, 1:].reshape(-1, 6, 6), lines
+
+
+def write_covariances_text(path: str | os.PathLike, timestamps: np.ndarray, cov: np.ndarray) -> Path:
+    """Write pose covariances (T, 6, 6) with their times (T,) as lines of ``t`` and the 36
+    numbers row-major (what :func:`read_pose_covariances` reads)."""
+    cov = np.asarray(cov, dtype=float)
+    timestamps = np.asarray(timestamps, dtype=float).reshape(-1)
+    if cov.ndim != 3 or cov.shape[1:] != (6, 6) or cov.shape[0] != timestamps.size:
+        raise InputError(f"{path}: need (T, 6, 6) covariances and T times, got {cov.shape} "
+                         f"and {timestamps.size}")
+    return _write_text(path, np.concatenate([timestamps[:, None], cov.reshape(-1, 36)], axis=1))
