@@ -31,6 +31,7 @@ COMMANDS = {
     "nees": ("nees", "Monte Carlo consistency (NEES) on the simulator"),
     "calibrate": ("calibrate", "identify the noise model of a drive from the data (no ground truth)"),
     "score": ("score", "score a trajectory made elsewhere against ground truth and the smoother"),
+    "compare": ("compare", "compare result folders (bench or nees) side by side"),
 }
 
 
