@@ -2,14 +2,16 @@
 estimator on the SE(3)-aligned ATE (m) and on the KITTI drift t_rel (%, 100-800 m segments),
 set about 10 % above what the code measured when the bound was set, so a regression fails.
 
-Every estimator runs once (``eval.benchmark.run_jobs``, 2 worker processes, the smoother
-starting from the invariant EKF as in ``vislam bench``), with the default FilterConfig."""
+Every estimator runs once (:func:`vislam.testing.run_drive`: ``eval.benchmark.run_jobs``, 2 worker
+processes, the smoother starting from the invariant EKF as in ``vislam bench``), with the default
+FilterConfig; the bounds are checked by :func:`vislam.testing.assert_accuracy`."""
 
 from __future__ import annotations
 
 import pytest
 
 from tests.regression.breaks import run_name, skip_or_fail
+from vislam.testing import assert_accuracy
 
 pytestmark = [pytest.mark.slow, pytest.mark.realdata]
 
@@ -29,12 +31,10 @@ BOUNDS = {n: (round(a * MARGIN + 0.005, 2), round(t * MARGIN + 0.005, 2)) for n,
 
 
 @pytest.fixture(scope="module")
-def scores_0027(kitti_data_dir, regression_config):
-    """{estimator: trajectory scores} of every estimator on 0027."""
-    import time
-
-    from vislam.eval.benchmark import load_bench_sequence, run_jobs
-    from vislam.eval.runjob import JobResult, trajectory_scores
+def study_0027(kitti_data_dir, regression_config):
+    """Every estimator on 0027 (:func:`vislam.testing.run_drive`), scored against ground truth."""
+    from vislam.eval.benchmark import load_bench_sequence
+    from vislam.testing import run_drive
 
     path = kitti_data_dir / f"{DRIVE}.npz"
     if not path.is_file():
@@ -42,26 +42,13 @@ def scores_0027(kitti_data_dir, regression_config):
     bs = load_bench_sequence(path)
     if bs.gt is None:
         skip_or_fail(f"no ground truth for {path} (expected {path.parent}/groundtruth/{DRIVE}.txt)")
-    names = {n: run_name(n) for n in MEASURED}
-    t0 = time.perf_counter()
-    outcomes = run_jobs({bs.name: bs.sequence}, list(dict.fromkeys(names.values())), regression_config,
-                        jobs=2, show_progress=False)
-    print(f"\n{DRIVE}: {len(set(names.values()))} estimators in {time.perf_counter() - t0:.1f} s")
-    out = {}
-    for name, run in names.items():
-        res = outcomes[(bs.name, run)]
-        out[name] = trajectory_scores(res.estimate, bs.gt) if isinstance(res, JobResult) else res.error
-    return out
+    study = run_drive({n: run_name(n) for n in MEASURED}, bs, config=regression_config, jobs=2)
+    print(f"\n{DRIVE}: {len({run_name(n) for n in MEASURED})} estimators in {study.wall_s:.1f} s")
+    return study
 
 
 @pytest.mark.parametrize("name", list(MEASURED))
-def test_accuracy_within_bounds(scores_0027, name):
-    scores = scores_0027[name]
-    assert isinstance(scores, dict), f"{name} failed on {DRIVE}: {scores}"
-    ate, t_rel = scores["ate_aligned_m"], scores["rpe_trans_pct"]
+def test_accuracy_within_bounds(study_0027, name):
     ate_bound, t_bound = BOUNDS[name]
-    line = (f"{name} on {DRIVE}: aligned ATE {ate:.3f} m (bound {ate_bound} m), "
-            f"KITTI t_rel {t_rel:.3f} % (bound {t_bound} %)")
-    print(line)
-    assert ate is not None and ate <= ate_bound, f"{line}: ATE {ate - ate_bound:+.3f} m over the bound"
-    assert t_rel is not None and t_rel <= t_bound, f"{line}: t_rel {t_rel - t_bound:+.3f} % over the bound"
+    for check in assert_accuracy(study_0027, name=name, ate_aligned_max=ate_bound, t_rel_max=t_bound):
+        print(check.message)

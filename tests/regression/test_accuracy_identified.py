@@ -7,19 +7,20 @@ ground truth (converted with the identified extrinsic, as the benchmark does):
 * ``kitti-pr3-2019/0027.npz``: clean velocities, about 3 tracks per frame.
 
 Same code, same defaults, nothing chosen per file. Bounds: measured x 1.1 (so that a regression
-fails), and the issue's targets where they are met (shared edition). The identification itself
-is pinned too: the linear velocity sigma of the shared edition (its README: 0.5 m/s) and the
-verdict that the file's extrinsic is refuted by the data (both editions).
+fails), and the issue's targets where they are met (shared edition), checked by
+:func:`vislam.testing.assert_accuracy` on a :func:`vislam.testing.run_drive` study. The
+identification itself is pinned too: the linear velocity sigma of the shared edition (its
+README: 0.5 m/s) and the verdict that the file's extrinsic is refuted by the data (both
+editions).
 """
 
 from __future__ import annotations
-
-import time
 
 import numpy as np
 import pytest
 
 from tests.regression.breaks import skip_or_fail
+from vislam.testing import assert_accuracy
 
 pytestmark = [pytest.mark.slow, pytest.mark.realdata]
 
@@ -48,31 +49,19 @@ TARGET_SMOOTHER_T_REL = 1.55
 
 
 def _bench(path, regression_config):
-    from vislam.eval.benchmark import identify_models, load_bench_sequence, run_jobs
-    from vislam.eval.runjob import JobResult, trajectory_scores
+    """Every estimator on ``path`` under the model identified from its data, as ``vislam bench``
+    does (:func:`vislam.testing.run_drive` with ``model="identified"``)."""
+    from vislam.eval.benchmark import load_bench_sequence
+    from vislam.testing import run_drive
 
     if not path.is_file():
         skip_or_fail(f"{path} not found")
     bs = load_bench_sequence(path)
     if bs.gt is None:
         skip_or_fail(f"no ground truth for {path}")
-    t0 = time.perf_counter()
-    (bs,) = identify_models([bs], regression_config, _smoother())
-    t1 = time.perf_counter()
-    outcomes = run_jobs({bs.name: bs.sequence}, list(ESTIMATORS), {bs.name: bs.config},
-                        jobs=2, show_progress=False)
-    print(f"\n{path}: identified in {t1 - t0:.1f} s, estimators in {time.perf_counter() - t1:.1f} s")
-    scores = {}
-    for name in ESTIMATORS:
-        res = outcomes[(bs.name, name)]
-        scores[name] = trajectory_scores(res.estimate, bs.gt) if isinstance(res, JobResult) else res.error
-    return bs, scores
-
-
-def _smoother():
-    from vislam.graph.settings import SmootherSettings
-
-    return SmootherSettings()
+    study = run_drive(list(ESTIMATORS), bs, config=regression_config, model="identified", jobs=2)
+    print(f"\n{path}: identified and estimated in {study.wall_s:.1f} s")
+    return study
 
 
 @pytest.fixture(scope="module")
@@ -90,42 +79,41 @@ def edition_2019(regression_config):
     return _bench(folder / "0027.npz", regression_config)
 
 
-def _check(edition, scores, name):
-    result = scores[name]
-    assert isinstance(result, dict), f"{name} failed on {edition}: {result}"
-    ate, t_rel = result["ate_aligned_m"], result["rpe_trans_pct"]
+def _check(edition, study, name, **targets):
     a, t = MEASURED[edition][name]
-    line = f"{name} on {edition}/0027: aligned ATE {ate:.3f} m (measured {a}), t_rel {t_rel:.3f} % (measured {t})"
-    print(line)
-    assert ate <= round(a * MARGIN + 0.005, 2), line
-    assert t_rel <= round(t * MARGIN + 0.005, 2), line
-    return ate, t_rel
+    bounds = {"ate_aligned_max": round(a * MARGIN + 0.005, 2), "t_rel_max": round(t * MARGIN + 0.005, 2)}
+    for check in assert_accuracy(study, name=name, **bounds):
+        print(f"{check.message} (measured {a if 'ATE' in check.quantity else t})")
+    if targets:
+        for check in assert_accuracy(study, name=name, **targets):
+            print(f"{check.message} (the issue's target)")
 
 
 @pytest.mark.parametrize("name", ESTIMATORS)
 def test_shared_edition_accuracy(shared, name):
-    ate, t_rel = _check("kitti-pr3", shared[1], name)
+    targets = {}
     if name in ("ekf-joint", "ekf-invariant"):
-        assert ate <= TARGET_EKF_ATE_M
+        targets["ate_aligned_max"] = TARGET_EKF_ATE_M
     if name == "smoother":
-        assert t_rel <= TARGET_SMOOTHER_T_REL
+        targets["t_rel_max"] = TARGET_SMOOTHER_T_REL
+    _check("kitti-pr3", shared, name, **targets)
 
 
 @pytest.mark.parametrize("name", ESTIMATORS)
 def test_2019_edition_accuracy(edition_2019, name):
-    _check("kitti-pr3-2019", edition_2019[1], name)
+    _check("kitti-pr3-2019", edition_2019, name)
 
 
 def test_the_identified_models(shared, edition_2019):
-    m_shared = shared[0].model
+    m_shared = shared.model
     assert m_shared["mode"] == "identified"
     sigma = np.array(m_shared["model"]["velocity_sigma"])
     assert np.all((0.45 <= sigma) & (sigma <= 0.6)), sigma  # the README's 0.5 m/s
     assert m_shared["model"]["gyro_bias"] is not None  # the README's gyro offsets
-    for bs in (shared[0], edition_2019[0]):
-        test = bs.model["identification"]["extrinsic_test"]
+    for study in (shared, edition_2019):
+        test = study.model["identification"]["extrinsic_test"]
         assert test["decision"].startswith("identified"), test  # the file's is refuted
         assert test["statistic"] > 10 * test["threshold"]
-    m19 = edition_2019[0].model["model"]
+    m19 = edition_2019.model["model"]
     assert m19["gyro_bias"] is None  # clean angular velocities: BIC says no bias
     assert max(m19["velocity_sigma"]) < 0.2  # clean velocities

@@ -1,5 +1,6 @@
 """Agreement on simulation: each EKF keeps the smoother inside its own 3-sigma on at least the
-share of frames the chi-square bound predicts.
+share of frames the chi-square bound predicts, checked with the public pytest helpers
+(:func:`vislam.testing.assert_agrees_with_smoother`).
 
 Per run and step (1..T-1) the EKF's pose difference from the smoother of the same run is
 normalised by the EKF's covariance (a 6-dof NEES, eval.consistency.pose_nees); "inside 3-sigma"
@@ -14,36 +15,19 @@ Run on the near-field simulation (``monte_carlo``; tests/regression/simulation.p
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
-from scipy.stats import binom, chi2
 
-from vislam.eval.consistency import POSE_DOF
+from vislam.testing import assert_agrees_with_smoother
 
 pytestmark = pytest.mark.slow
-
-THREE_SIGMA = chi2.cdf(9.0, 1)  # 0.9973
-
-
-def _share(mc, name) -> tuple[float, float, str]:
-    nees = mc.versus_smoother[name][:, 1:]
-    nees = nees[np.isfinite(nees)]
-    assert nees.size, f"{name}: no step compared with the smoother (errors: {mc.errors[name][:1]})"
-    share = float(np.mean(nees <= chi2.ppf(THREE_SIGMA, POSE_DOF)))
-    required = float(binom.ppf(0.01, nees.size, THREE_SIGMA) / nees.size)
-    line = (f"{name}: smoother inside the EKF's 3-sigma on {share:.4f} of {nees.size} frames "
-            f"(predicted {THREE_SIGMA:.4f}, required >= {required:.4f}; "
-            f"median NEES vs smoother {np.median(nees):.2f})")
-    print(line)
-    return share, required, line
 
 
 @pytest.mark.parametrize("name", ["ekf-invariant", "ekf-joint"])
 def test_ekf_agrees_with_smoother(monte_carlo, name):
-    share, required, line = _share(monte_carlo, name)
-    assert share >= required, line
+    print(assert_agrees_with_smoother(monte_carlo, name).message)
 
 
 def test_decoupled_disagrees_with_smoother(monte_carlo):
-    share, required, line = _share(monte_carlo, "ekf-decoupled")
-    assert share < required, f"{line}: the decoupled filter now agrees; was 0.007"
+    check = monte_carlo.agreement("ekf-decoupled")
+    print(check.message)
+    assert check.verdict == "disagrees", f"{check.message}: the decoupled filter now agrees; was 0.010"
