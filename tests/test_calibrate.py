@@ -106,7 +106,7 @@ def test_calibrate_writes_a_model_every_command_reads(drive, tmp_path, capsys):
     assert main(["calibrate", str(drive), "--out", str(model_file), "--pairings", "mean"]) == 0
     text = capsys.readouterr().out
     assert "velocity sigma x y z (m/s)" in text and "lever arm: camera from the point the velocities are of" in text
-    assert "file extrinsic: chi-square" in text and "velocity vs vision:" in text
+    assert "file extrinsic: Wald statistic" in text and "BIC" in text and "velocity vs vision:" in text
     model = Model.from_toml(model_file)
     assert model.velocity_pairing == "mean" and 0.3 < model.velocity_sigma[0] < 0.7
     assert model.cam_T_imu_sigma is not None  # the data's uncertainty about the extrinsic

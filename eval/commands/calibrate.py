@@ -125,8 +125,11 @@ def _verdict(fit) -> list[str]:
     determined = np.array([n not in fit.cam_T_imu_undetermined for n in EXTRINSIC_COMPONENTS])
     lines = []
     if test:
-        lines.append(f"file extrinsic: chi-square {test['statistic']:.1f} on {test['dof']} dof "
-                     f"against {test['threshold']:.1f} ({test['level']:.0%}): {test['decision']}")
+        chi2_part = (f"; chi-square {test['level']:.0%}: {test['chi2_threshold']:.1f}"
+                     if "chi2_threshold" in test else "")
+        lines.append(f"file extrinsic: Wald statistic {test['statistic']:.1f} on {test['dof']} dof "
+                     f"against {test['threshold']:.1f} ({test.get('criterion', 'chi-square')}"
+                     f"{chi2_part}): {test['decision']}")
     if np.allclose(C, F):
         return lines
     for what, part, unit, scale in (("lever arm", slice(0, 3), "m", 1.0),
