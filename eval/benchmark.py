@@ -1,8 +1,10 @@
 """The benchmark (``vislam bench``) and the Monte Carlo consistency study (``vislam nees``).
 
-Jobs are (sequence, estimator) pairs run in worker processes (``--jobs``). The batch smoother
-starts from an EKF's estimate (:data:`eval.registry.SMOOTHER_INITIAL_FROM`): its job is
-submitted when that EKF's job on the same sequence has finished, so the EKF never runs twice.
+Jobs are (sequence, estimator) pairs run in worker processes (``--jobs``): a local process
+pool, or a Dask cluster (``--executor dask``, :mod:`eval.executors`), with the same results to
+the last digit. The batch smoother starts from an EKF's estimate
+(:data:`eval.registry.SMOOTHER_INITIAL_FROM`): its job is submitted when that EKF's job on the
+same sequence has finished, so the EKF never runs twice.
 Scores and figures are computed in the main process; every output is built in a temporary
 folder and renamed into place at the end (:mod:`eval.atomic`).
 
@@ -28,12 +30,10 @@ with the smoother's estimate on the same sequence (null for the smoothers themse
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import contextlib
+import collections
 import dataclasses
 import logging
 import math
-import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +46,7 @@ from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.sequence import Observations, Sequence
 from vislam.eval.consistency import reference_honesty
+from vislam.eval.executors import JobLost, open_executor
 from vislam.eval.registry import (
     SMOOTHER_INITIAL_FROM,
     SMOOTHERS,
@@ -297,45 +298,28 @@ def _job(seq: Sequence, key: str, name, config: FilterConfig, initial: Estimate 
         return JobFailure(key, display_name(name), f"{type(exc).__name__}: {exc}",
                           time.perf_counter() - t0)
     result.sequence = key
+    result.estimate = _c_ordered(result.estimate)
     return result
 
 
-def _worker_signals() -> None:
-    """In each worker: Ctrl-C (sent by the terminal to the whole process group) is the main
-    process's to handle, and SIGTERM (how the main process ends a worker) ends it at once."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+def _c_ordered(est: Estimate) -> Estimate:
+    """``est`` with every array C-ordered, as it comes back from a worker process (pickling
+    copies a strided array into C order): the figures computed from it (NEES, ATE) are then the
+    same to the last digit whether the job ran in this process (``--jobs 1``), in the local pool
+    or on Dask (the smoother's poses are strided, and a strided reduction can round
+    differently)."""
+    if dataclasses.is_dataclass(est):
+        for f in dataclasses.fields(est):
+            value = getattr(est, f.name)
+            if isinstance(value, np.ndarray) and not value.flags.c_contiguous:
+                setattr(est, f.name, np.ascontiguousarray(value))
+    return est
 
 
-def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
-    """Terminate the pool's workers and return without waiting for their jobs to finish."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    for p in processes:
-        with contextlib.suppress(Exception):
-            p.terminate()
-    pool.shutdown(wait=False, cancel_futures=True)
-    for p in processes:
-        with contextlib.suppress(Exception):
-            p.join(timeout=1.0)
-
-
-def _outcome(fut: cf.Future, signals) -> "JobResult | JobFailure":
-    """A finished job's result; a worker that died (killed, out of memory) is an error, unless
-    a signal to the whole process group (Ctrl-C, ``timeout``, a job scheduler) killed it: that
-    signal, noted by ``signals`` (eval.signals.Deferred) within a moment, takes precedence."""
-    try:
-        return fut.result()
-    except cf.process.BrokenProcessPool as exc:
-        deadline = time.monotonic() + 0.5
-        while signals.signum is None and time.monotonic() < deadline:
-            time.sleep(0.02)
-        signals.check()
-        raise EstimationError(f"a worker process died ({exc}); the benchmark cannot go on") from None
-
-
-def _running(labels: dict, pending: set) -> str:
-    """The progress bar's words: the jobs running now (not the ones that just finished)."""
-    running = [labels[f] for f in pending if f.running()]
+def _running(labels: dict, pending: set, running: set | None = None) -> str:
+    """The progress bar's words: the jobs running now (not the ones that just finished);
+    ``running`` the futures the executor knows to run (default: those whose ``running()``)."""
+    running = [labels[f] for f in pending if (f in running if running is not None else f.running())]
     if not running:
         return "waiting" if pending else "finishing"
     return "running " + ", ".join(sorted(running)[:2]) + (f" and {len(running) - 2} more" if len(running) > 2 else "")
@@ -353,12 +337,18 @@ def run_jobs(
     show_progress: bool = True,
     on_result: Callable[[JobResult | JobFailure], None] | None = None,
     smoother: SmootherSettings | None = None,
+    executor: str = "local",
+    scheduler: str | None = None,
 ) -> dict[tuple[str, str], JobResult | JobFailure]:
     """Run every estimator on every sequence; returns {(sequence key, estimator): result}.
 
     The smoother waits for its initialiser EKF on the same sequence (if that EKF is among
     ``estimators`` and ``smoother.init`` is ``"ekf"``) and starts from its estimate.
-    ``config`` is one FilterConfig for every sequence, or one per sequence key.
+    ``config`` is one FilterConfig for every sequence, or one per sequence key. ``executor``
+    runs the jobs (:mod:`eval.executors`): "local", ``jobs`` worker processes (none with
+    ``jobs`` 1: in this process), or "dask", an embedded cluster of ``jobs`` workers or the
+    cluster at ``scheduler``. The results do not depend on either: every job is the same
+    function of its drive and settings.
     """
     configs = config if isinstance(config, dict) else {k: config for k in sequences}
     init_name = _initialiser(estimators)
@@ -388,38 +378,56 @@ def run_jobs(
         return follow
 
     try:
-        if jobs <= 1:
+        if jobs <= 1 and executor == "local":
             queue = [(k, n, None) for k in sequences for n in order]
             while queue:
                 key, name, initial = queue.pop(0)
                 bar.set_description(f"running {display_name(name)} on {key}")
                 queue.extend(record(_job(sequences[key], key, name, configs[key], initial, smoother)))
             return results
-        # Signals are deferred while the pool is managed (an exception inside its locks would
-        # break them) and acted on between waits, within a tenth of a second.
+        # Signals are deferred while the workers are managed (an exception inside the pool's or
+        # the client's locks would break them) and acted on between waits, within a tenth of a
+        # second. Which job runs when is decided here, the same for every executor: every job
+        # submitted at once (local) or a few per worker (dask), the smoother when its EKF is done.
         with deferred() as signals:
-            pool = cf.ProcessPoolExecutor(max_workers=jobs, initializer=_worker_signals)
+            pool = open_executor(executor, jobs, scheduler)
             try:
-                labels: dict[cf.Future, str] = {}
+                labels: dict = {}  # future -> "estimator on sequence", while it is pending
+                jobs_of: dict = {}  # future -> (sequence key, estimator)
+                queue = collections.deque((k, n, None) for k in sequences for n in order)
+                pending: set = set()
 
-                def submit(key, name, initial) -> cf.Future:
-                    fut = pool.submit(_job, sequences[key], key, name, configs[key], initial, smoother)
-                    labels[fut] = f"{display_name(name)} on {key}"
-                    return fut
+                def submit() -> None:
+                    while queue and (pool.capacity() is None or len(pending) < pool.capacity()):
+                        key, name, initial = queue.popleft()
+                        fut = pool.submit(_job, sequences[key], key, name, configs[key], initial,
+                                          smoother)
+                        labels[fut] = f"{display_name(name)} on {key}"
+                        jobs_of[fut] = (key, name)
+                        pending.add(fut)
 
-                pending = {submit(k, n, None) for k in sequences for n in order}
+                submit()
                 while pending:
                     signals.check()
-                    done, pending = cf.wait(pending, timeout=0.1, return_when=cf.FIRST_COMPLETED)
+                    done, _ = pool.wait(pending, 0.1)
                     for fut in done:
-                        for key, name, initial in record(_outcome(fut, signals)):
-                            pending.add(submit(key, name, initial))
-                    bar.set_description(_running(labels, pending))
+                        pending.discard(fut)
+                        key, name = jobs_of.pop(fut)
+                        del labels[fut]  # no reference left: a Dask result is freed
+                        try:
+                            res = pool.outcome(fut, signals)
+                        except JobLost as exc:
+                            res = JobFailure(key, display_name(name), str(exc))
+                        # a smoother waiting for this EKF goes first: its drive and the EKF's
+                        # estimate are freed the sooner
+                        queue.extendleft(reversed(record(res)))
+                    submit()
+                    bar.set_description(_running(labels, pending, pool.running(pending)))
                 signals.check()
             except BaseException:
-                _stop_pool(pool)  # Ctrl-C, SIGTERM, an error: end the workers now
+                pool.abort()  # Ctrl-C, SIGTERM, an error: end the workers now
                 raise
-            pool.shutdown(wait=True)
+            pool.close()
         return results
     finally:
         bar.close()
@@ -740,12 +748,15 @@ def run_benchmark(
     force: bool = False,
     extra_inputs: tuple = (),
     align: str = "se3",
+    executor: str = "local",
+    scheduler: str | None = None,
 ) -> BenchOutput:
     """Run, score, plot and write everything into ``out_dir``; ``smoother`` the smoothers'
     settings (defaults when None); ``align`` the alignment before every aligned ATE
     (eval.metrics.ALIGN_MODES, recorded as results.json's ``alignment``). The folder is checked
     before the first job starts and written as :mod:`eval.output_dir` says (``force``: write
-    beside files vislam did not write, never over them)."""
+    beside files vislam did not write, never over them). ``executor`` and ``scheduler``: where
+    the jobs run (:func:`run_jobs`)."""
     from vislam.eval.atomic import atomic_symlink
     from vislam.eval.metrics import check_align_mode
     from vislam.eval.output_dir import OutputDir
@@ -760,7 +771,8 @@ def run_benchmark(
     out = OutputDir(out_dir, force=force, inputs=inputs, expected=[*BENCH_FILES, *by_key])
     with out as tmp:
         configs = {bs.name: bs.config if bs.config is not None else config for bs in sequences}
-        outcomes = run_jobs(by_key, estimators, configs, jobs, show_progress, smoother=smoother)
+        outcomes = run_jobs(by_key, estimators, configs, jobs, show_progress, smoother=smoother,
+                            executor=executor, scheduler=scheduler)
         with deferred():  # a signal waits until the files are written (matplotlib's C code
             # must not be cut short), then ends the command and the staging folder goes
             results, summary = _write_results(tmp, sequences, estimators, outcomes, config, jobs,
@@ -902,10 +914,13 @@ def monte_carlo_nees(
     show_progress: bool = True,
     smoother: SmootherSettings | None = None,
     sim_max_depth: float | None = None,
+    executor: str = "local",
+    scheduler: str | None = None,
 ) -> dict:
     """ANEES of pose (6 dof, steps 1..T-1) and landmarks (3 dof) over ``runs`` noise draws of
     one simulated drive (seed ``seed``, landmarks up to ``sim_max_depth`` m deep: see
-    :func:`nees_sim_config`); the nees.json content."""
+    :func:`nees_sim_config`); the nees.json content. ``executor`` and ``scheduler``: where the
+    runs go (:func:`run_jobs`); the numbers do not depend on it, nor on ``jobs``."""
     smoother = smoother if smoother is not None else SmootherSettings()
     from vislam.eval.consistency import LANDMARK_DOF, POSE_DOF, anees, chi2_bounds, pose_nees
     from vislam.eval.simulate import simulate
@@ -935,7 +950,8 @@ def monte_carlo_nees(
         landmark[res.estimator][i] = landmark_nees_by_source(est, truth.landmarks)
         runtime[res.estimator].append(res.wall_s)
 
-    outcomes = run_jobs(seqs, estimators, config, jobs, show_progress, on_result=reduce, smoother=smoother)
+    outcomes = run_jobs(seqs, estimators, config, jobs, show_progress, on_result=reduce, smoother=smoother,
+                        executor=executor, scheduler=scheduler)
     outcomes.clear()
     out = {
         "runs": runs,

@@ -19,6 +19,7 @@ EXIT_FAILURES = 3
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from vislam.eval.benchmark import DEFAULT_BENCH_FRAMES
+    from vislam.eval.executors import add_executor_arguments
     from vislam.eval.registry import DEFAULT_BENCH, ESTIMATOR_NAMES
     from vislam.eval.runjob import add_align_argument, add_filter_arguments
 
@@ -33,7 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"(eval/registry.py), or 'all' (default: {','.join(DEFAULT_BENCH)}; "
                              f"all: {','.join(ESTIMATOR_NAMES)} and installed plug-ins)")
     parser.add_argument("--jobs", "-j", type=int, default=None, metavar="N",
-                        help="worker processes (default: number of CPUs)")
+                        help="worker processes (default: number of CPUs; with --executor dask "
+                             "the workers of the cluster started here)")
     parser.add_argument("--frames", type=int, default=None, metavar="N",
                         help=f"length of the default simulated drive (default {DEFAULT_BENCH_FRAMES})")
     parser.add_argument("--seed", type=int, default=0, help="seed of the default simulated drive")
@@ -44,6 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "cached by content, see 'vislam calibrate'), the default; as-given: "
                              "the file's extrinsic and the settings as given (the paper's). A "
                              "[model] table in --config is used as it is")
+    add_executor_arguments(parser)
     add_align_argument(parser)
     add_filter_arguments(parser)
 
@@ -58,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
         identify_models,
         run_benchmark,
     )
+    from vislam.eval.executors import check_executor, executor_settings
     from vislam.eval.model_cache import cache_dir
     from vislam.eval.registry import DEFAULT_BENCH, estimators_from_flag
     from vislam.eval.runjob import (
@@ -77,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 1:
         raise InputError(f"--jobs must be >= 1, got {jobs}")
+    executor = check_executor(args.executor, args.scheduler)
     model = model_from_args(args)
     sequences = collect_sequences(args.paths, frames=args.frames, seed=args.seed)
     if model is not None:
@@ -100,9 +105,11 @@ def run(args: argparse.Namespace) -> int:
     result = run_benchmark(
         sequences, estimators, config, out, jobs=jobs, show_progress=not args.quiet,
         settings={**environment_settings(), "model_mode": "config" if model is not None
-                  else args.model},
+                  else args.model,
+                  "executor": executor_settings(executor, args.scheduler, jobs)},
         latest_link=latest, smoother=smoother, force=args.force,
         extra_inputs=(args.config,), align=getattr(args, "align", "se3"),
+        executor=executor, scheduler=args.scheduler,
     )
     if not args.quiet:
         print(result.summary)

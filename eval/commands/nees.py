@@ -31,6 +31,7 @@ def sim_depth_error(depth: float) -> str | None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from vislam.eval.benchmark import DEFAULT_NEES_FRAMES
+    from vislam.eval.executors import add_executor_arguments
     from vislam.eval.runjob import add_filter_arguments
     from vislam.eval.simulate import DEFAULT_SIM
 
@@ -40,7 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"comma-separated names or MODULE:FUNCTION (a user's estimator, "
                              f"eval/registry.py), or 'all' (default: {','.join(NEES_DEFAULT)})")
     parser.add_argument("--jobs", "-j", type=int, default=None, metavar="N",
-                        help="worker processes (default: number of CPUs)")
+                        help="worker processes (default: number of CPUs; with --executor dask "
+                             "the workers of the cluster started here)")
     parser.add_argument("--frames", type=int, default=None, metavar="N",
                         help=f"length of the simulated drive (default {DEFAULT_NEES_FRAMES})")
     parser.add_argument("--sim-max-depth", type=float, default=None, metavar="M",
@@ -51,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write into a non-empty folder vislam did not write (its files are "
                              "never replaced)")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar, no table")
+    add_executor_arguments(parser)
     add_filter_arguments(parser)
 
 
@@ -64,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from vislam.eval.output_dir import OutputDir
     from vislam.eval.signals import deferred
     from vislam.eval.benchmark import monte_carlo_nees
+    from vislam.eval.executors import check_executor, executor_settings
     from vislam.eval.registry import estimators_from_flag
     from vislam.eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
 
@@ -81,16 +85,19 @@ def run(args: argparse.Namespace) -> int:
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     if jobs < 1:
         raise InputError(f"--jobs must be >= 1, got {jobs}")
+    executor = check_executor(args.executor, args.scheduler)
+    jobs = min(jobs, args.runs * len(estimators))
     landmarks = "" if depth is None else f", landmarks up to {depth:g} m"
     out = Path(args.out) if args.out else Path("results") / time.strftime("nees-%Y%m%d-%H%M%S")
 
     t0 = time.perf_counter()
     with OutputDir(out, force=args.force, expected=NEES_FILES, inputs=[args.config]) as tmp:
         result = monte_carlo_nees(args.runs, args.seed, estimators, config, frames=args.frames,
-                                  jobs=min(jobs, args.runs * len(estimators)),
-                                  show_progress=not args.quiet, smoother=smoother,
-                                  sim_max_depth=depth)
-        result["settings"] = environment_settings()
+                                  jobs=jobs, show_progress=not args.quiet, smoother=smoother,
+                                  sim_max_depth=depth, executor=executor,
+                                  scheduler=args.scheduler)
+        result["settings"] = {**environment_settings(),
+                              "executor": executor_settings(executor, args.scheduler, jobs)}
         with deferred():  # a signal waits until the files are written
             write_json(tmp / "nees.json", result)
             series = {n: r["nees_pose_over_time"] for n, r in result["estimators"].items()}
