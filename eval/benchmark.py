@@ -709,8 +709,9 @@ def _model_line(model: dict | None) -> str:
             f"{m.get('pixel_sigma', float('nan')):.3g} px, pairing {m.get('velocity_pairing')}, {bias}")
     test = (model.get("identification") or {}).get("extrinsic_test") or {}
     if test:
-        text += (f"; extrinsic: {test['decision']} (chi-square {test['statistic']:.3g} on "
-                 f"{test['dof']} dof)")
+        how_tested = test.get("criterion", "chi-square")
+        text += (f"; extrinsic: {test['decision']} (Wald statistic {test['statistic']:.3g} on "
+                 f"{test['dof']} dof against {test['threshold']:.3g}, {how_tested})")
     return text + "."
 
 
