@@ -709,9 +709,10 @@ def _model_line(model: dict | None) -> str:
             f"{m.get('pixel_sigma', float('nan')):.3g} px, pairing {m.get('velocity_pairing')}, {bias}")
     test = (model.get("identification") or {}).get("extrinsic_test") or {}
     if test:
-        how_tested = test.get("criterion", "chi-square")
+        against = (f" against {test['threshold']:.3g}, {test.get('criterion', 'chi-square')}"
+                   if "threshold" in test else "")
         text += (f"; extrinsic: {test['decision']} (Wald statistic {test['statistic']:.3g} on "
-                 f"{test['dof']} dof against {test['threshold']:.3g}, {how_tested})")
+                 f"{test['dof']} dof{against})")
     return text + "."
 
 

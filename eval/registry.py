@@ -302,15 +302,21 @@ def check_contract(est, seq, name: str) -> None:
         _check_covariances(lcov, "landmark covariance of track", fail, rows)
 
 
+#: Relative tolerance of the covariance checks (of the largest entry): a filter's own rounding
+#: (the invariant EKF's landmark conversions reach 7e-8 on hostile drives) passes, a wrong
+#: entry or a negative variance does not.
+COVARIANCE_RTOL = 1e-6
+
+
 def _check_covariances(cov: np.ndarray, what: str, fail, index=None) -> None:
     scale = np.maximum(np.abs(cov).max(axis=(1, 2)), 1e-300)
     asym = np.abs(cov - np.swapaxes(cov, 1, 2)).max(axis=(1, 2)) / scale
-    bad = np.flatnonzero(asym > 1e-9)
+    bad = np.flatnonzero(asym > COVARIANCE_RTOL)
     if bad.size:
         k = int(bad[0] if index is None else index[bad[0]])
         fail(f"a {what} {k} that is not symmetric (relative asymmetry {asym[bad[0]]:.1e})")
     low = np.linalg.eigvalsh((cov + np.swapaxes(cov, 1, 2)) / 2)[:, 0] / scale
-    bad = np.flatnonzero(low < -1e-9)
+    bad = np.flatnonzero(low < -COVARIANCE_RTOL)
     if bad.size:
         k = int(bad[0] if index is None else index[bad[0]])
         fail(f"a {what} {k} that is not positive semi-definite (smallest eigenvalue "
