@@ -48,6 +48,7 @@ from vislam.ekf.sequence import Observations, Sequence
 from vislam.eval.consistency import reference_honesty
 from vislam.eval.executors import JobLost, open_executor
 from vislam.eval.registry import (
+    ESTIMATOR_NAMES,
     SMOOTHER_INITIAL_FROM,
     SMOOTHERS,
     UserEstimatorError,
@@ -515,7 +516,9 @@ def sequence_figures(folder: Path, bs: BenchSequence, ests: dict[str, Estimate])
             folder / "error_over_distance.png", ests, gt.frames, np.asarray(gt.poses),
             f"{title}: translation error over distance (no alignment)"))
     ref = reference_smoother(ests)
-    ekfs = {n: e for n, e in ests.items() if n.startswith("ekf-")}
+    # vislam's EKFs and a user's estimators (MODULE:FUNCTION, plug-ins): everything but the
+    # smoothers, dead reckoning and mapping, which the smoother would only dwarf
+    ekfs = {n: e for n, e in ests.items() if n.startswith("ekf-") or n not in ESTIMATOR_NAMES}
     if ref is not None and ekfs:
         written.append(plots.plot_vs_smoother(
             folder / "vs_smoother.png", ekfs, ests[ref],

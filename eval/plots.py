@@ -18,6 +18,7 @@ from __future__ import annotations
 import io
 import os
 import textwrap
+import zlib
 from pathlib import Path
 from typing import Mapping
 
@@ -52,6 +53,10 @@ STYLES: dict[str, dict] = {
 }
 #: One colour per estimator (the colours of :data:`STYLES`).
 COLOURS = {name: style["color"] for name, style in STYLES.items()}
+#: Colours of estimators without a style of their own (a user's, MODULE:FUNCTION): none of
+#: :data:`STYLES`' colours, so a user's estimator never looks like the smoother or an EKF.
+_FALLBACK_COLOURS = ("tab:pink", "tab:olive", "tab:cyan", "navy", "goldenrod", "teal",
+                     "magenta", "darkslategray")
 _FALLBACK_LINESTYLES = ("-", (0, (5, 3)), "-.", ":", (0, (1, 1)), (0, (8, 2, 1, 2)))
 _FALLBACK_MARKERS = ("P", "X", "*", "h", "<", ">", "p", "d")
 #: Markers every this fraction of the axes diagonal; estimator k starts at k * _MARK_OFFSET.
@@ -61,8 +66,12 @@ GT_STYLE = {"color": "black", "linestyle": "--", "linewidth": 1.2, "label": "gro
 DPI = 110
 
 
-def _colour(name: str, i: int) -> str:
-    return COLOURS.get(name, f"C{i % 10}")
+def _colour(name: str, i: int = 0) -> str:
+    """The estimator's colour: its own, or for a user's estimator one of
+    :data:`_FALLBACK_COLOURS` chosen by its name, so that it is the same in every figure."""
+    if name in COLOURS:
+        return COLOURS[name]
+    return _FALLBACK_COLOURS[zlib.crc32(name.encode()) % len(_FALLBACK_COLOURS)]
 
 
 def line_style(name: str, i: int = 0, n_points: int | None = None) -> dict:
@@ -72,7 +81,8 @@ def line_style(name: str, i: int = 0, n_points: int | None = None) -> dict:
     ``n_points`` (noisy series, whose length on screen says little) about 14 markers by index."""
     k = list(STYLES).index(name) if name in STYLES else len(STYLES) + i
     style = dict(STYLES.get(name) or {
-        "color": f"C{i % 10}", "linestyle": _FALLBACK_LINESTYLES[i % len(_FALLBACK_LINESTYLES)],
+        "color": _colour(name),
+        "linestyle": _FALLBACK_LINESTYLES[i % len(_FALLBACK_LINESTYLES)],
         "linewidth": 1.5, "marker": _FALLBACK_MARKERS[i % len(_FALLBACK_MARKERS)], "zorder": 2.3,
     })
     wide = style["linewidth"] > 2.5

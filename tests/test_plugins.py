@@ -231,3 +231,26 @@ def test_a_missing_user_module_exits_2_before_any_work(user_folder, tmp_path, ca
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "no module 'user_absent'" in err[0]
     assert not out.exists()
+
+
+def test_a_user_estimator_has_a_colour_of_its_own_in_every_figure(monkeypatch, tmp_path):
+    from vislam.eval import benchmark, plots
+
+    for name in ("my_filter:estimate", "pkg.mod:run", "other:estimate"):
+        colour = plots.line_style(name, i=3)["color"]
+        assert colour not in plots.COLOURS.values()  # never the smoother's red or an EKF's
+        assert plots.line_style(name, i=0)["color"] == colour == plots._colour(name, 5)
+    # and it is among the filters compared with the smoother, as vislam's EKFs are
+    seen = {}
+
+    def spy(path, ekfs, ref, title):
+        seen["names"] = list(ekfs)
+        return path
+
+    monkeypatch.setattr(plots, "plot_vs_smoother", spy)
+    bs = simulated_sequence(0, 30)
+    ests = {n: registry.get_estimator(n)(bs.sequence, FilterConfig())
+            for n in ("dead-reckoning", "smoother")}
+    ests["user:estimate"] = ests["dead-reckoning"]
+    benchmark.sequence_figures(tmp_path, bs, ests)
+    assert seen["names"] == ["user:estimate"]
