@@ -176,24 +176,10 @@ _EUROC_COLUMNS = "timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z"
 def _text_lines(path: str | os.PathLike, what: str, delimiter: str | None = None):
     """(line number, fields) of every line of the text file ``path`` that is neither blank nor
     a ``#`` comment; fields split at ``delimiter`` (whitespace when None) and stripped."""
-    from vislam.eval.loader import check_regular_file, open_for_reading
+    from vislam.eval.loader import read_text
 
     path = Path(path)
-    check_regular_file(path, what)
-    with open_for_reading(path, what) as fh:
-        try:
-            size = os.fstat(fh.fileno()).st_size
-            data = fh.read(min(size, MAX_TEXT_BYTES) + 1)
-        except OSError as exc:
-            raise InputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
-    if len(data) > MAX_TEXT_BYTES:
-        raise InputError(f"{path}: {what} is larger than {MAX_TEXT_BYTES} bytes; not a {what}?")
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = data.count(b"\n", 0, exc.start) + 1
-        raise InputError(f"{path}: line {line}: {what} is not UTF-8 text (byte "
-                         f"0x{data[exc.start]:02x} at offset {exc.start})") from None
+    text = read_text(path, what, MAX_TEXT_BYTES)
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.strip()
         if not stripped or stripped.startswith("#"):

@@ -84,29 +84,13 @@ class GroundTruth:
 def read_kitti_poses(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     """Camera poses ``P`` (n, 4, 4) and the time column (n,) or None, from a 12- or
     13-column KITTI pose file. Faults raise :class:`InputError` naming file and line."""
-    from vislam.eval.loader import check_regular_file, open_for_reading
+    from vislam.eval.loader import read_text
 
     path = Path(path)
     what = "ground-truth file"
-    check_regular_file(path, what)
-    too_large = (f"{path}: {what} is larger than {MAX_GROUND_TRUTH_BYTES} bytes (about a "
-                 "million poses); not a KITTI pose file?")
-    with open_for_reading(path, what) as fh:
-        try:
-            size = os.fstat(fh.fileno()).st_size
-            if size > MAX_GROUND_TRUTH_BYTES:
-                raise InputError(too_large)
-            data = fh.read(size + 1)  # read(n) allocates n bytes: never the limit itself
-        except OSError as exc:
-            raise InputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
-    if len(data) > MAX_GROUND_TRUTH_BYTES:
-        raise InputError(too_large)
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = data.count(b"\n", 0, exc.start) + 1
-        raise InputError(f"{path}: line {line}: {what} is not UTF-8 text (byte "
-                         f"0x{data[exc.start]:02x} at offset {exc.start})") from None
+    text = read_text(path, what, MAX_GROUND_TRUTH_BYTES,
+                     f"{path}: {what} is larger than {MAX_GROUND_TRUTH_BYTES} bytes (about a "
+                     "million poses); not a KITTI pose file?")
     rows: list[list[float]] = []
     line_numbers: list[int] = []
     width = None

@@ -238,6 +238,31 @@ def open_for_reading(path: Path, what: str = "file"):
         raise InputError(f"{path}: cannot read the {what} ({_reason(exc)})") from None
 
 
+def read_text(path: Path, what: str, max_bytes: int, too_large: str | None = None) -> str:
+    """The UTF-8 text of the regular file ``path`` (a ``what``: named in every message), at
+    most ``max_bytes`` long (``too_large`` the message beyond); a file that cannot be read, is
+    too large or is not UTF-8 (the line of the first bad byte named) is an :class:`InputError`."""
+    path = Path(path)
+    check_regular_file(path, what)
+    too_large = too_large or f"{path}: {what} is larger than {max_bytes} bytes; not a {what}?"
+    with open_for_reading(path, what) as fh:
+        try:
+            size = os.fstat(fh.fileno()).st_size
+            if size > max_bytes:
+                raise InputError(too_large)
+            data = fh.read(size + 1)  # read(n) allocates n bytes: never the limit itself
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read the {what} ({_reason(exc)})") from None
+    if len(data) > max_bytes:  # grown since fstat
+        raise InputError(too_large)
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise InputError(f"{path}: line {line}: {what} is not UTF-8 text (byte "
+                         f"0x{data[exc.start]:02x} at offset {exc.start})") from None
+
+
 def _reason(exc: BaseException) -> str:
     if isinstance(exc, OSError) and exc.strerror:
         return exc.strerror

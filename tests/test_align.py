@@ -21,21 +21,13 @@ from vislam.eval.metrics import (
     umeyama,
     yaw_fit,
 )
+from tests.test_metrics import _random_drive
 
 
 def _drive(rng, n=200, dt=0.1):
-    """A smooth random 3-D drive (T, 4, 4) integrated from random body twists (it climbs and
-    banks a little, so its positions are not planar)."""
-    u = np.zeros((n - 1, 6))
-    u[:, 0] = 8.0 + rng.normal(0, 0.5, n - 1)
-    u[:, 2] = rng.normal(0, 0.5, n - 1)
-    u[:, 3:] = rng.normal(0, 0.05, (n - 1, 3))
-    steps = se3_exp(dt * u)
-    poses = np.empty((n, 4, 4))
-    poses[0] = np.eye(4)
-    for k in range(n - 1):
-        poses[k + 1] = poses[k] @ steps[k]
-    return poses
+    """A smooth random 3-D drive (T, 4, 4): it climbs and banks a little, so its positions
+    are not planar."""
+    return _random_drive(rng, n, dt, vertical=0.5)
 
 
 def _noisy(rng, gt, sigma_t=0.3, sigma_r=0.01):

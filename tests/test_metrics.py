@@ -25,10 +25,13 @@ import evo.core.metrics as evo_metrics  # noqa: E402  (evo: the test extra)
 import evo.core.trajectory as evo_traj  # noqa: E402
 
 
-def _random_drive(rng, n=300, dt=0.1):
-    """A smooth random drive (T, 4, 4) integrated from random body twists."""
+def _random_drive(rng, n=300, dt=0.1, vertical=0.0):
+    """A smooth random drive (T, 4, 4) integrated from random body twists; with ``vertical``
+    (m/s) a random vertical speed too, so that it climbs and its positions are not planar."""
     u = np.zeros((n - 1, 6))
     u[:, 0] = 8.0 + rng.normal(0, 0.5, n - 1)
+    if vertical:
+        u[:, 2] = rng.normal(0, vertical, n - 1)
     u[:, 3:] = rng.normal(0, 0.05, (n - 1, 3))
     steps = se3_exp(dt * u)
     poses = np.empty((n, 4, 4))
