@@ -848,6 +848,18 @@ def _save_estimate(path: Path, est: Estimate) -> None:
 # --- Monte Carlo NEES ------------------------------------------------------------------------
 
 
+def monte_carlo_drives(sim_config, runs: int) -> tuple:
+    """The Monte Carlo drives of ``sim_config``: (its noise-free SimResult, ``{"run000": drive,
+    ...}`` with the noise of run i drawn from ``numpy.random.default_rng([seed, i])``)."""
+    from vislam.eval.simulate import simulate
+
+    truth = simulate(dataclasses.replace(sim_config, noise_free=True))
+    seqs = {f"run{i:03d}": redraw_noise(truth, sim_config,
+                                        np.random.default_rng([sim_config.seed, i]))
+            for i in range(runs)}
+    return truth, seqs
+
+
 def redraw_noise(truth, sim_config, rng: np.random.Generator) -> Sequence:
     """The noise-free simulated drive ``truth`` (a SimResult made with ``noise_free=True``) with
     fresh velocity and pixel noise of ``sim_config``'s levels, drawn from ``rng``.
@@ -928,15 +940,12 @@ def monte_carlo_nees(
     runs go (:func:`run_jobs`); the numbers do not depend on it, nor on ``jobs``."""
     smoother = smoother if smoother is not None else SmootherSettings()
     from vislam.eval.consistency import LANDMARK_DOF, POSE_DOF, anees, chi2_bounds, pose_nees
-    from vislam.eval.simulate import simulate
 
     if runs < 1:
         raise InputError(f"--runs must be >= 1, got {runs}")
     sim_config = nees_sim_config(seed, frames, sim_max_depth)
-    truth = simulate(dataclasses.replace(sim_config, noise_free=True))
+    truth, seqs = monte_carlo_drives(sim_config, runs)
     T = truth.sequence.n_frames
-    seqs = {f"run{i:03d}": redraw_noise(truth, sim_config, np.random.default_rng([seed, i]))
-            for i in range(runs)}
 
     names = [display_name(e) for e in estimators]  # a user's callable by MODULE:FUNCTION
     pose = {n: np.full((runs, T), np.nan) for n in names}

@@ -364,10 +364,9 @@ def monte_carlo(estimators, runs: int = 10, frames: int | None = None, seed: int
     ``reference`` the estimator the others are compared with (a label among ``estimators`` or an
     estimator; None: none). ``jobs`` worker processes (1: in this process, where any callable
     works; more: a callable must be importable by its module and name)."""
-    from vislam.eval.benchmark import JobFailure, landmark_nees_by_source, redraw_noise
+    from vislam.eval.benchmark import JobFailure, landmark_nees_by_source, monte_carlo_drives
     from vislam.eval.consistency import pose_nees
     from vislam.eval.registry import display_name
-    from vislam.eval.simulate import simulate
 
     if int(runs) < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
@@ -383,10 +382,8 @@ def monte_carlo(estimators, runs: int = 10, frames: int | None = None, seed: int
             labelled.update(_labelled({ref_label: reference}))
     config = config if config is not None else FilterConfig()
     sim_config = _sim_config(sim, seed, frames)
-    truth = simulate(dataclasses.replace(sim_config, noise_free=True))
+    truth, seqs = monte_carlo_drives(sim_config, runs)
     T = truth.sequence.n_frames
-    seqs = {f"run{i:03d}": redraw_noise(truth, sim_config, np.random.default_rng([sim_config.seed, i]))
-            for i in range(runs)}
     by_run: dict[str, list[str]] = {}
     for label, spec in labelled.items():
         by_run.setdefault(display_name(spec), []).append(label)
