@@ -40,7 +40,6 @@ import dataclasses
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -228,6 +227,15 @@ def check_time_options(t_max_diff: float, t_offset: float) -> None:
         raise InputError(f"--t-offset must be a finite number of seconds, got {t_offset}")
 
 
+def positions_in(sorted_frames: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each of ``frames`` stands in the increasing ``sorted_frames``: (positions, found),
+    a position meaningful only where found."""
+    pos = np.searchsorted(sorted_frames, frames)
+    found = (pos < sorted_frames.size) & (
+        sorted_frames[np.clip(pos, 0, max(sorted_frames.size - 1, 0))] == frames)
+    return pos, found
+
+
 def covariances_for(cov, traj: Trajectory, assoc: Association, frame_times: np.ndarray
                     ) -> tuple[np.ndarray, int]:
     """The covariance (n, 6, 6) of each associated frame from ``cov``
@@ -244,8 +252,7 @@ def covariances_for(cov, traj: Trajectory, assoc: Association, frame_times: np.n
         out[:] = cov.cov[assoc.rows]
         return out, assoc.n
     frames, rows, _, _ = match_times(cov.times, frame_times, assoc.t_max_diff, assoc.t_offset)
-    pos = np.searchsorted(assoc.frames, frames)
-    hit = (pos < assoc.n) & (assoc.frames[np.clip(pos, 0, max(assoc.n - 1, 0))] == frames)
+    pos, hit = positions_in(assoc.frames, frames)
     out[pos[hit]] = cov.cov[rows[hit]]
     n = int(np.count_nonzero(hit))
     if n == 0:
@@ -294,8 +301,7 @@ def restrict_truth(gt, frames: np.ndarray):
 
     frames = np.asarray(frames, dtype=np.int64)
     gt_frames = np.asarray(gt.frames, dtype=np.int64)
-    pos = np.searchsorted(frames, gt_frames)
-    hit = (pos < frames.size) & (frames[np.clip(pos, 0, max(frames.size - 1, 0))] == gt_frames)
+    pos, hit = positions_in(frames, gt_frames)
     return KnownTruth(pos[hit], np.asarray(gt.poses)[hit], getattr(gt, "source", None))
 
 
@@ -312,23 +318,6 @@ def load_drive(data: str | Path):
                          "was estimated on")
     (bs,) = collect_sequences([str(data)])
     return bs
-
-
-def apply_model(bs, config, smoother, *, model=None, mode: str = "identify", config_path=None,
-                on_start: Callable | None = None):
-    """The drive ``bs`` (:func:`load_drive`) under the model ``vislam bench`` would use with
-    the same options, through the benchmark's own functions: ``model`` (a --config [model]
-    table) when given, else ``mode`` "identify" (identified from the data, cached by content;
-    ground truth converted with its extrinsic) or "as-given"."""
-    from vislam.eval.benchmark import apply_model_to, as_given, identify_models
-
-    if model is not None:
-        return apply_model_to([bs], model, None, "config", {"source": str(config_path)})[0]
-    if mode == "identify":
-        return identify_models([bs], config, smoother, on_start=on_start)[0]
-    if mode == "as-given":
-        return as_given([bs])[0]
-    raise InputError(f"--model must be identify or as-given, got {mode!r}")
 
 
 def reference_estimators(smoother) -> list[str]:

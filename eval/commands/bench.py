@@ -40,29 +40,50 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"length of the default simulated drive (default {DEFAULT_BENCH_FRAMES})")
     parser.add_argument("--seed", type=int, default=0, help="seed of the default simulated drive")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bars, no table")
-    parser.add_argument("--model", choices=("identify", "as-given"), default="identify",
-                        help="identify: every estimator runs under the model identified from "
-                             "each drive's own data (noise, gyro bias, pairing, extrinsic; "
-                             "cached by content, see 'vislam calibrate'), the default; as-given: "
-                             "the file's extrinsic and the settings as given (the paper's). A "
-                             "[model] table in --config is used as it is")
+    add_model_argument(parser)
     add_executor_arguments(parser)
     add_align_argument(parser)
     add_filter_arguments(parser)
 
 
+def add_model_argument(parser: argparse.ArgumentParser) -> None:
+    """``--model identify|as-given`` (bench, score): which model the drives are run under."""
+    parser.add_argument("--model", choices=("identify", "as-given"), default="identify",
+                        help="identify: every estimator runs under the model identified from "
+                             "each drive's own data (noise, gyro bias, pairing, extrinsic; "
+                             "cached by content, see 'vislam calibrate'), and ground truth is "
+                             "converted with its extrinsic, the default; as-given: the file's "
+                             "extrinsic and the settings as given (the paper's). A [model] "
+                             "table in --config is used as it is")
+
+
+def drives_under_model(args: argparse.Namespace, sequences: list, config, smoother, model) -> list:
+    """``sequences`` (eval.benchmark.BenchSequence) under the model the options ask for: the
+    [model] table of --config (``model``, eval.runjob.model_from_args) as it is, else
+    ``--model identify`` (said on stderr unless --quiet: it takes a while once per drive)
+    or ``as-given``."""
+    from vislam.eval.benchmark import apply_model_to, as_given, identify_models
+    from vislam.eval.model_cache import cache_dir
+
+    if model is not None:
+        return apply_model_to(sequences, model, None, "config", {"source": str(args.config)})
+    if args.model == "identify":
+        def announce(bs) -> None:
+            if not args.quiet:
+                print(f"identifying the model of {bs.name} from its data (once: kept in "
+                      f"{cache_dir()})", file=sys.stderr)
+        return identify_models(sequences, config, smoother, on_start=announce)
+    return as_given(sequences)
+
+
 def run(args: argparse.Namespace) -> int:
     from vislam.ekf.errors import InputError
     from vislam.eval.benchmark import (
-        apply_model_to,
-        as_given,
         collect_sequences,
         default_out_dir,
-        identify_models,
         run_benchmark,
     )
     from vislam.eval.executors import check_executor, executor_settings
-    from vislam.eval.model_cache import cache_dir
     from vislam.eval.registry import DEFAULT_BENCH, estimators_from_flag
     from vislam.eval.runjob import (
         environment_settings,
@@ -83,18 +104,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--jobs must be >= 1, got {jobs}")
     executor = check_executor(args.executor, args.scheduler)
     model = model_from_args(args)
-    sequences = collect_sequences(args.paths, frames=args.frames, seed=args.seed)
-    if model is not None:
-        sequences = apply_model_to(sequences, model, None, "config",
-                                   {"source": str(args.config)})
-    elif args.model == "identify":
-        def announce(bs) -> None:
-            if not args.quiet:
-                print(f"identifying the model of {bs.name} from its data (once: kept in "
-                      f"{cache_dir()})", file=sys.stderr)
-        sequences = identify_models(sequences, config, smoother, on_start=announce)
-    else:
-        sequences = as_given(sequences)
+    sequences = drives_under_model(
+        args, collect_sequences(args.paths, frames=args.frames, seed=args.seed), config,
+        smoother, model)
     jobs = min(jobs, len(sequences) * len(estimators))
 
     if args.out:

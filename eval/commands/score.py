@@ -29,6 +29,7 @@ import sys
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from vislam.eval.runjob import add_align_argument, add_filter_arguments
+    from vislam.eval.commands.bench import add_model_argument
     from vislam.eval.score import DEFAULT_T_MAX_DIFF, FORMATS
 
     parser.add_argument("trajectory", metavar="TRAJ", help="trajectory file (tum, kitti, euroc)")
@@ -58,12 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-reference", action="store_true",
                         help="do not run the reference smoother (the vs-smoother figures are null)")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar, no table")
-    parser.add_argument("--model", choices=("identify", "as-given"), default="identify",
-                        help="as for vislam bench: identify (default) runs the reference under "
-                             "the model identified from the drive's data (cached by content) and "
-                             "converts the ground truth with its extrinsic; as-given uses the "
-                             "file's extrinsic and the settings as given. A [model] table in "
-                             "--config is used as it is")
+    add_model_argument(parser)
     add_align_argument(parser)
     add_filter_arguments(parser)
 
@@ -72,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     from vislam.ekf.errors import InputError
     from vislam.eval.atomic import write_json, write_text
     from vislam.eval.export import read_pose_covariances
-    from vislam.eval.model_cache import cache_dir
+    from vislam.eval.commands.bench import drives_under_model
     from vislam.eval.output_dir import OutputDir
     from vislam.eval.runjob import (
         environment_settings,
@@ -82,7 +78,6 @@ def run(args: argparse.Namespace) -> int:
     )
     from vislam.eval.score import (
         SCORE_FILES,
-        apply_model,
         associate,
         check_time_options,
         load_drive,
@@ -106,14 +101,8 @@ def run(args: argparse.Namespace) -> int:
     assoc = associate(traj, plain.sequence.timestamps, args.t_max_diff, args.t_offset,
                       data=str(args.data))
 
-    def announce(bs) -> None:
-        if not args.quiet:
-            print(f"identifying the model of {bs.name} from its data (once: kept in "
-                  f"{cache_dir()})", file=sys.stderr)
-
     def compute() -> dict:
-        bs = apply_model(plain, config, smoother, model=model, mode=args.model,
-                         config_path=args.config, on_start=announce)
+        (bs,) = drives_under_model(args, [plain], config, smoother, model)
         result = score(traj, bs, config=config, smoother=smoother, cov=cov,
                        t_max_diff=args.t_max_diff, t_offset=args.t_offset,
                        align=getattr(args, "align", "se3"), reference=not args.no_reference,
