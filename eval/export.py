@@ -97,14 +97,20 @@ def _write_text(path: str | os.PathLike, rows: np.ndarray) -> Path:
 def write_tum(path: str | os.PathLike, timestamps: np.ndarray, poses: np.ndarray) -> Path:
     """Write poses (T, 4, 4) with their times (T,) as ``t tx ty tz qx qy qz qw`` lines."""
     poses = _check_poses(poses, str(path))
+    timestamps = _times_for(path, timestamps, poses)
+    quat = Rotation.from_matrix(poses[:, :3, :3]).as_quat()  # x, y, z, w
+    rows = np.concatenate([timestamps[:, None], poses[:, :3, 3], quat], axis=1)
+    return _write_text(path, rows)
+
+
+def _times_for(path, timestamps, poses: np.ndarray) -> np.ndarray:
+    """``timestamps`` as a flat float array, one per pose, or an InputError naming ``path``."""
     timestamps = np.asarray(timestamps, dtype=float).reshape(-1)
     if timestamps.size != poses.shape[0]:
         raise InputError(
             f"{path}: {timestamps.size} timestamps for {poses.shape[0]} poses; they must match"
         )
-    quat = Rotation.from_matrix(poses[:, :3, :3]).as_quat()  # x, y, z, w
-    rows = np.concatenate([timestamps[:, None], poses[:, :3, 3], quat], axis=1)
-    return _write_text(path, rows)
+    return timestamps
 
 
 def write_kitti(path: str | os.PathLike, poses: np.ndarray) -> Path:
@@ -219,6 +225,23 @@ def _check_increasing(path, times: np.ndarray, lines: np.ndarray) -> None:
                          f"previous line's {times[i - 1]!r} (timestamps must increase)")
 
 
+def _numeric_lines(path, what: str, n_cols: int, expected: str, hint=None, empty: str = "no pose lines"
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The numbers (N, n_cols) of the data lines of the text file ``path`` (a ``what``) and
+    their line numbers (N,); a line of another width is an InputError saying ``expected``
+    (and ``hint(fields)``), a file without data lines one saying it has ``empty``."""
+    rows, lines = [], []
+    for number, fields in _text_lines(path, what):
+        if len(fields) != n_cols:
+            raise _column_error(path, number, len(fields), expected,
+                                hint(fields) if hint else "")
+        rows.append(_numbers(path, number, fields))
+        lines.append(number)
+    if not rows:
+        raise InputError(f"{path}: {what} has {empty}")
+    return np.asarray(rows), np.asarray(lines, dtype=np.int64)
+
+
 def _check_translations(path, t: np.ndarray, lines: np.ndarray) -> None:
     big = np.flatnonzero(np.max(np.abs(t), axis=1) > MAX_TRANSLATION)
     if big.size:
@@ -257,17 +280,11 @@ def read_tum_checked(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, n
     """A TUM trajectory ``t x y z qx qy qz qw`` (what :func:`write_tum` and evo write), every
     line checked: times (T,) strictly increasing, poses (T, 4, 4) and the line numbers (T,).
     Unlike :func:`read_tum`, every fault is a one-line InputError naming the line."""
-    rows, lines = [], []
-    for number, fields in _text_lines(path, "TUM trajectory file"):
-        if len(fields) != 8:
-            hint = ("; a KITTI pose file? give --format kitti" if len(fields) == 12 else
-                    "; an EuRoC CSV file? give --format euroc" if "," in fields[0] else "")
-            raise _column_error(path, number, len(fields), f"8 ({_TUM_COLUMNS})", hint)
-        rows.append(_numbers(path, number, fields))
-        lines.append(number)
-    if not rows:
-        raise InputError(f"{path}: TUM trajectory file has no pose lines")
-    data, lines = np.asarray(rows), np.asarray(lines, dtype=np.int64)
+    def hint(fields):
+        return ("; a KITTI pose file? give --format kitti" if len(fields) == 12 else
+                "; an EuRoC CSV file? give --format euroc" if "," in fields[0] else "")
+
+    data, lines = _numeric_lines(path, "TUM trajectory file", 8, f"8 ({_TUM_COLUMNS})", hint)
     _check_increasing(path, data[:, 0], lines)
     _check_translations(path, data[:, 1:4], lines)
     R = quaternion_rotations(path, data[:, 4:8], lines)
@@ -280,17 +297,10 @@ def read_kitti_checked(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]
     :data:`ROTATION_TOL`): poses (T, 4, 4) and line numbers (T,)."""
     from vislam.ekf.geometry import is_rigid
 
-    rows, lines = [], []
-    for number, fields in _text_lines(path, "KITTI pose file"):
-        if len(fields) != 12:
-            hint = "; a TUM file? give --format tum" if len(fields) == 8 else ""
-            raise _column_error(path, number, len(fields), "12 (the 3x4 pose, row-major)", hint)
-        rows.append(_numbers(path, number, fields))
-        lines.append(number)
-    if not rows:
-        raise InputError(f"{path}: KITTI pose file has no pose lines")
-    lines = np.asarray(lines, dtype=np.int64)
-    poses = _to_4x4(np.asarray(rows).reshape(-1, 3, 4))
+    rows, lines = _numeric_lines(
+        path, "KITTI pose file", 12, "12 (the 3x4 pose, row-major)",
+        lambda fields: "; a TUM file? give --format tum" if len(fields) == 8 else "")
+    poses = _to_4x4(rows.reshape(-1, 3, 4))
     _check_translations(path, poses[:, :3, 3], lines)
     for i in range(poses.shape[0]):
         if not is_rigid(poses[i], tol=ROTATION_TOL):
@@ -332,11 +342,7 @@ def write_euroc(path: str | os.PathLike, timestamps: np.ndarray, poses: np.ndarr
     """Write poses (T, 4, 4) with their times (T,, seconds) as an EuRoC CSV (header line, then
     ``timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z``; times rounded to whole ns)."""
     poses = _check_poses(poses, str(path))
-    timestamps = np.asarray(timestamps, dtype=float).reshape(-1)
-    if timestamps.size != poses.shape[0]:
-        raise InputError(
-            f"{path}: {timestamps.size} timestamps for {poses.shape[0]} poses; they must match"
-        )
+    timestamps = _times_for(path, timestamps, poses)
     q = Rotation.from_matrix(poses[:, :3, :3]).as_quat()
     lines = ["#timestamp [ns],p_x [m],p_y [m],p_z [m],q_w [],q_x [],q_y [],q_z []"]
     for t, p, qq in zip(timestamps, poses[:, :3, 3], q):
@@ -464,16 +470,8 @@ def _covariances_npy(path: Path) -> np.ndarray:
 
 
 def _covariances_text(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    rows, lines = [], []
-    for number, fields in _text_lines(path, "covariance file"):
-        if len(fields) != 37:
-            raise _column_error(path, number, len(fields),
-                                "37 (timestamp and the 6x6 covariance, row-major)")
-        rows.append(_numbers(path, number, fields))
-        lines.append(number)
-    if not rows:
-        raise InputError(f"{path}: covariance file has no lines")
-    data, lines = np.asarray(rows), np.asarray(lines, dtype=np.int64)
+    data, lines = _numeric_lines(path, "covariance file", 37,
+                                 "37 (timestamp and the 6x6 covariance, row-major)", empty="no lines")
     _check_increasing(path, data[:, 0], lines)
     return data[:, 0].copy(), data[:, 1:].reshape(-1, 6, 6), lines
 
