@@ -175,6 +175,22 @@ def _require(obj, key: str, kind, where: str):
     return value
 
 
+def _named_objects(items: list, where: str, what: str, within: str = ""):
+    """(place, object, name) of each item of ``items`` (placed ``where[i]`` in messages): an
+    object with a text ``name`` no other item has (a duplicate is a ``what`` that appears
+    twice ``within``)."""
+    seen = set()
+    for i, item in enumerate(items):
+        place = f"{where}[{i}]"
+        if not isinstance(item, dict):
+            raise InputError(f"{place}: expected an object, got {_short(item)}")
+        name = _require(item, "name", str, place)
+        if name in seen:
+            raise InputError(f"{place}.name: {what} {name!r} appears twice{within}")
+        seen.add(name)
+        yield place, item, name
+
+
 def _check_bench(data, path: Path) -> dict:
     from vislam.eval.benchmark import SCHEMA
 
@@ -185,25 +201,9 @@ def _check_bench(data, path: Path) -> dict:
         raise InputError(f"{path}: key 'schema' is {_short(schema)}; vislam compare reads "
                          f"schema {SCHEMA} (results.json of vislam bench)")
     seqs = _require(data, "sequences", list, str(path))
-    seen = set()
-    for i, s in enumerate(seqs):
-        where = f"{path}: sequences[{i}]"
-        if not isinstance(s, dict):
-            raise InputError(f"{where}: expected an object, got {_short(s)}")
-        name = _require(s, "name", str, where)
-        if name in seen:
-            raise InputError(f"{where}.name: sequence {name!r} appears twice")
-        seen.add(name)
+    for where, s, name in _named_objects(seqs, f"{path}: sequences", "sequence"):
         rows = _require(s, "estimators", list, where)
-        names = set()
-        for j, r in enumerate(rows):
-            w = f"{where}.estimators[{j}]"
-            if not isinstance(r, dict):
-                raise InputError(f"{w}: expected an object, got {_short(r)}")
-            n = _require(r, "name", str, w)
-            if n in names:
-                raise InputError(f"{w}.name: estimator {n!r} appears twice in {name!r}")
-            names.add(n)
+        for w, r, _ in _named_objects(rows, f"{where}.estimators", "estimator", f" in {name!r}"):
             if r.get("error") is not None and not isinstance(r["error"], str):
                 raise InputError(f"{w}.error: expected text or null, got {_short(r['error'])}")
             vs = r.get("vs_smoother")
