@@ -17,8 +17,10 @@
   kinds share the state, each landmark has 3 rows either way.
 * Tracks whose last observation has passed are marginalised out (deleting their rows and
   columns is exact for a Gaussian); their final mean and 3x3 covariance go to the map.
-  ``config.keep_landmarks`` keeps every landmark in the state instead (textbook EKF SLAM;
-  O(n^2) memory, for small problems).
+  ``config.keep_landmarks`` keeps every landmark in the state instead (textbook EKF SLAM): an
+  ended track's landmark keeps being refined through its cross-covariance with the pose. Its
+  rows are kept exactly, and cheaply, by :class:`ekf.retired.RetiredLandmarks`;
+  ``run_joint(..., textbook=True)`` runs the dense ``O(n^2)`` form instead (the reference).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from vislam.ekf.estimate import Estimate
 from vislam.ekf.numerics import NumericalGuard, UpdateRejected, all_finite, finite_norm2, finite_rows
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.geometry import adjoint, hat, se3_inv
+from vislam.ekf.retired import RetiredLandmarks
 from vislam.ekf.prediction import (
     se3_exp_single,
     bias_transition,
@@ -58,7 +61,7 @@ _AR3 = np.arange(3)
 class JointState:
     """Mean and joint covariance of ``[pose, (gyro bias), active landmarks]``."""
 
-    def __init__(self, config: FilterConfig, n_tracks: int):
+    def __init__(self, config: FilterConfig, n_tracks: int, textbook: bool = False):
         self.core = 9 if config.gyro_bias else 6
         self.U = np.eye(4)
         self.bias = np.zeros(3)
@@ -83,6 +86,8 @@ class JointState:
         # The map: final landmark means and covariances (NaN where none).
         self.map_mean = np.full((n_tracks, 3), np.nan)
         self.map_cov = np.full((n_tracks, 3, 3), np.nan)
+        # keep_landmarks: ended tracks' landmarks leave the active state but keep their rows.
+        self.retired = RetiredLandmarks(self.core) if config.keep_landmarks and not textbook else None
 
     @property
     def n_landmarks(self) -> int:
@@ -142,6 +147,8 @@ class JointState:
         if P.shape[0] > c:
             P[:c, c:] = Phi @ P[:c, c:]
             P[c:, :c] = P[:c, c:].T
+        if self.retired is not None and self.retired.n:
+            self.retired.predict(Phi, Q, P)
 
     # --- update -------------------------------------------------------------------------
     def update(self, model: StereoModel, tracks: np.ndarray, z: np.ndarray) -> tuple[int, int]:
@@ -231,11 +238,26 @@ class JointState:
         dm = dx[self.core :].reshape(-1, 3)
         x_prior = self.lm_mean
         self.lm_mean = self.lm_mean + dm
+        if self.retired is not None and self.retired.n:
+            self.update_retired(dx, E, U_prior, dm, x_prior)
         if self.linearisation == "oc" and self.inverse_depth and self.lm_id.any():
             transport(self.P, self.core, E, self.transport_rows(dm, x_prior, U_prior))
         elif self.linearisation != "standard":
             gauge_transport(self.P, self.core, E, U_prior[:3, :3], dm if self.linearisation == "oc" else None)
         return a, int(tracks.size) - a
+
+    def update_retired(self, dx, E, U_prior, dm, x_prior) -> None:
+        """The retired landmarks' share of an update (``dx`` the active increment) and of the
+        transport that follows it (:meth:`ekf.retired.RetiredLandmarks.update`)."""
+        C_a = None
+        if self.linearisation == "oc":
+            if self.inverse_depth and self.lm_id.any():
+                C_a = self.transport_rows(dm, x_prior, U_prior)
+            else:
+                C_a = np.zeros((self.n_landmarks, 3, 6))
+                C_a[:, :, 3:] = hat(dm) @ U_prior[:3, :3].T
+            C_a = C_a.reshape(-1, 6)
+        self.retired.update(dx, self.linearisation, E, C_a, U_prior)
 
     def transport_rows(self, dm: np.ndarray, x_prior: np.ndarray, U_prior: np.ndarray) -> np.ndarray:
         """The landmark rows ``C`` (3n, 6) of :func:`transport` with inverse-depth landmarks in
@@ -292,6 +314,8 @@ class JointState:
             J_d = idp.inverse_jacobian(m, R_a) @ J_d
         Jd = J_d.reshape(3 * n, 6)
         B = Jd @ self.P[:6, :]  # cross-covariance with the whole state (3n, N)
+        if self.retired is not None:
+            self.retired.augment(3 * n)
         C = B[:, :6] @ Jd.T
         C.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] += Cz
         N = self.P.shape[0]
@@ -316,11 +340,15 @@ class JointState:
     def convert_linear(self, model: StereoModel) -> int:
         """Turn every inverse-depth landmark whose linearity index (ID-5) seen from the current
         camera is below ``inverse_depth_linearity`` into world ``m`` (ID-6); returns how many."""
-        if not self.inverse_depth or self.linearity <= 0 or not self.lm_id.any():
+        if not self.inverse_depth or self.linearity <= 0:
+            return 0
+        centre = (se3_inv(self.U) @ model.imu_T_cam)[:3, 3]
+        if self.retired is not None:
+            self.retired.convert_linear(self.P, centre, self.linearity, self.linearisation)
+        if not self.lm_id.any():
             return 0
         ids = np.flatnonzero(self.lm_id)
         rho_rows = self.core + 3 * ids + 2
-        centre = (se3_inv(self.U) @ model.imu_T_cam)[:3, 3]
         L = idp.linearity_index(
             self.lm_mean[ids], self.P[rho_rows, rho_rows], self.anchor_R[ids], self.anchor_p[ids], centre
         )
@@ -342,6 +370,8 @@ class JointState:
         P = self.P
         P[rows] = J @ P[rows]
         P[:, rows] = np.einsum("nkj,kij->nki", P[:, rows], J)
+        if self.retired is not None:
+            self.retired.transform_columns(rows, J)
         self.lm_mean[ids] = idp.world_point(x, R_a, p_a)
         self.lm_first[ids] = idp.world_point(self.lm_first[ids], R_a, p_a)
         self.lm_id[ids] = False
@@ -365,16 +395,25 @@ class JointState:
         return self.P[rows[:, :, None], rows[:, None, :]]
 
     def marginalise(self, tracks: np.ndarray) -> None:
-        """Move the active landmarks of ``tracks`` to the map and delete them from the state."""
+        """Move the active landmarks of ``tracks`` to the map and delete them from the state
+        (with ``keep_landmarks``: to the retired landmarks, which keep their rows)."""
         tracks = tracks[self.slot[tracks] >= 0]
         if tracks.size == 0:
             return
         slots = self.slot[tracks]
-        self.map_mean[tracks], self.map_cov[tracks] = self.world_landmarks(slots)
         keep_lm = np.ones(self.n_landmarks, dtype=bool)
         keep_lm[slots] = False
         keep = np.concatenate([np.ones(self.core, dtype=bool), np.repeat(keep_lm, 3)])
         ix = np.nonzero(keep)[0]
+        if self.retired is None:
+            self.map_mean[tracks], self.map_cov[tracks] = self.world_landmarks(slots)
+        else:
+            k = slots.size
+            ids = self.lm_id[slots] if self.inverse_depth else np.zeros(k, dtype=bool)
+            R_a = self.anchor_R[slots] if self.inverse_depth else np.zeros((k, 3, 3))
+            p_a = self.anchor_p[slots] if self.inverse_depth else np.zeros((k, 3))
+            self.retired.retire(self.P, ix, self.landmark_rows(slots), self.lm_mean[slots],
+                                self.lm_first[slots], tracks, ids, R_a, p_a)
         self.P = self.P[np.ix_(ix, ix)]
         self.slot[tracks] = -1
         self.lm_mean = self.lm_mean[keep_lm]
@@ -391,6 +430,13 @@ class JointState:
         if self.n_landmarks:
             slots = np.arange(self.n_landmarks)
             self.map_mean[self.lm_track], self.map_cov[self.lm_track] = self.world_landmarks(slots)
+        if self.retired is not None and self.retired.n:
+            self.map_mean[self.retired.track], self.map_cov[self.retired.track] = self.retired.world(self.P)
+
+    @property
+    def state_dim(self) -> int:
+        """Rows of the joint covariance, retired landmarks included."""
+        return self.P.shape[0] + (0 if self.retired is None else self.retired.F.shape[0])
 
 
 def symmetric_downdate(P: np.ndarray, Y: np.ndarray) -> None:
@@ -459,19 +505,24 @@ def transport(P: np.ndarray, core: int, E: np.ndarray, C: np.ndarray) -> None:
 
 
 def run_joint(
-    seq: Sequence, config: FilterConfig = FilterConfig(), progress: Progress = None
+    seq: Sequence, config: FilterConfig = FilterConfig(), progress: Progress = None,
+    textbook: bool = False,
 ) -> Estimate:
-    """Joint EKF SLAM with the full pose-landmark covariance (see the module docstring)."""
+    """Joint EKF SLAM with the full pose-landmark covariance (see the module docstring).
+
+    ``textbook`` (with ``config.keep_landmarks``): keep every landmark in one dense covariance,
+    ``O(n^2)`` per update, instead of :class:`ekf.retired.RetiredLandmarks`' exact rows (the
+    same numbers; the reference for the test of the latter)."""
     seq, info = prepare_sequence(seq, config)
     rec = StepRecorder(seq.n_frames)
     model = StereoModel.from_config(seq.calibration, config)
     tau, u = interval_twists(seq, config)
     ending = tracks_ending(seq)
     last = seq.track_last_frame()
-    st = JointState(config, seq.n_tracks)
+    st = JointState(config, seq.n_tracks, textbook)
     guard = NumericalGuard("ekf-joint", seq.timestamps)
     c = st.core
-    max_dim = st.P.shape[0]
+    max_dim = st.state_dim
     with blas_limits(config):
         for t in range(seq.n_frames):
             tracks, z = seq.frame(t)
@@ -496,8 +547,8 @@ def run_joint(
                 if n_num:
                     guard.reject(t, "innovation covariance or triangulation not finite", n_num)
                 st.convert_linear(model)
-                max_dim = max(max_dim, st.P.shape[0])
-                if not config.keep_landmarks:
+                max_dim = max(max_dim, st.state_dim)
+                if not config.keep_landmarks or st.retired is not None:
                     st.marginalise(ending[t])
                 rec.n_updates[t] = n_acc
                 rec.n_initialised[t] = n_init

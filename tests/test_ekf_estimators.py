@@ -99,6 +99,47 @@ def test_marginalisation_is_exact(noisy_sim):
     assert kept.info["max_state_dim"] > marg.info["max_state_dim"]
 
 
+def _head(seq, n):
+    """The first ``n`` frames of ``seq``."""
+    from vislam.ekf.sequence import Observations, Sequence
+
+    a, b = seq.obs.frame_ptr[0], seq.obs.frame_ptr[n]
+    obs = Observations(seq.obs.frame_ptr[: n + 1], seq.obs.track[a:b], seq.obs.z[a:b])
+    return Sequence(name="short", timestamps=seq.timestamps[:n], linear_velocity=seq.linear_velocity[:n],
+                    angular_velocity=seq.angular_velocity[:n], obs=obs, n_tracks=seq.n_tracks,
+                    calibration=seq.calibration)
+
+
+@pytest.mark.parametrize(
+    "param, linearisation, bias",
+    [("inverse-depth", "oc", True), ("inverse-depth", "fej", False), ("inverse-depth", "standard", True),
+     ("euclidean", "oc", False), ("euclidean", "fej", True), ("euclidean", "standard", False)],
+)
+def test_keep_landmarks_equals_the_dense_textbook_update(noisy_sim, param, linearisation, bias):
+    """``keep_landmarks`` through :class:`ekf.retired.RetiredLandmarks` (regressions of the
+    retired landmarks on the active state) gives the numbers of the dense joint covariance
+    (``textbook=True``) to 1e-9: poses, pose covariances, every landmark's mean and covariance,
+    after every track of a 70-frame drive has ended or been refined for tens of frames."""
+    from vislam.ekf.joint import run_joint
+
+    seq = _head(noisy_sim.sequence, 70)
+    cfg = BASE.replace(keep_landmarks=True, landmark_parameterisation=param,
+                       joint_linearisation=linearisation, gyro_bias=bias)
+    fast, dense = run_joint(seq, cfg), run_joint(seq, cfg, textbook=True)
+    has = dense.has_landmark
+    assert has.sum() > 300 and np.array_equal(has, fast.has_landmark)
+    np.testing.assert_allclose(fast.poses, dense.poses, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fast.pose_cov, dense.pose_cov, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fast.landmarks[has], dense.landmarks[has], rtol=0, atol=1e-9)
+    scale = np.abs(dense.landmark_cov[has]).max(axis=(1, 2))[:, None, None]
+    assert np.abs(fast.landmark_cov[has] - dense.landmark_cov[has]).max() > 0  # two computations
+    np.testing.assert_array_less(np.abs(fast.landmark_cov[has] - dense.landmark_cov[has]) / scale, 1e-9)
+    # The refinement is real: kept landmarks moved away from their marginalised estimates.
+    marg = run_joint(seq, cfg.replace(keep_landmarks=False))
+    assert np.abs(fast.landmarks[has] - marg.landmarks[has]).max() > 1e-3
+    assert fast.info["max_state_dim"] == dense.info["max_state_dim"]
+
+
 @pytest.mark.parametrize("linearisation", ["standard", "fej", "oc"])
 def test_joint_update_matches_dense_kalman_reference(noisy_sim, linearisation):
     """The structured stacked update equals the textbook dense Joseph-form update (followed, for
