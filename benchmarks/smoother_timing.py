@@ -54,7 +54,7 @@ def main() -> None:
     for path in args.files:
         seq = load_sequence(path)
         start, cpu = time.perf_counter(), time.process_time()
-        est = run_isam2(seq, config) if args.isam2 else run_smoother(seq, config, init=args.init, settings=settings)
+        est = run_isam2(seq, config, settings=settings) if args.isam2 else run_smoother(seq, config, init=args.init, settings=settings)
         wall, cpu = time.perf_counter() - start, time.process_time() - cpu
         t = est.info["timing"]
         print(f"{path.name} {est.estimator} init={est.info.get('init', '-')} "
