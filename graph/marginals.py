@@ -23,6 +23,8 @@ world-frame ``Point3`` covariances in both.
 
 from __future__ import annotations
 
+import re
+
 from dataclasses import dataclass
 
 import gtsam
@@ -149,9 +151,12 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
     try:
         Lb = scipy.linalg.cholesky_banded(ab, lower=True, check_finite=True)
     except (np.linalg.LinAlgError, ValueError) as exc:
-        text = str(exc)
-        digits = [int(t) for t in text.replace(".", " ").split() if t.isdigit()]
-        where = f" near {key_name(X((digits[0] - 1) // 6))}" if digits else ""
+        # LAPACK's order of the failing leading minor ("12-th leading minor not positive
+        # definite"); none when the matrix is not finite: then its first non-finite pose row
+        order = re.search(r"(\d+)", str(exc)) if isinstance(exc, np.linalg.LinAlgError) else None
+        bad = np.flatnonzero(~np.isfinite(S.data))
+        row = int(order.group(1)) - 1 if order else (int(S.row[bad[0]]) if bad.size else None)
+        where = f" near {key_name(X(row // 6))}" if row is not None else ""
         raise EstimationError(
             f"marginals: the pose information matrix is not positive definite{where} "
             f"(an under-constrained pose)") from None
