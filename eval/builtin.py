@@ -57,3 +57,10 @@ def smoother_isam2(seq: Sequence, settings) -> Estimate:
     from vislam.graph.isam2 import run_isam2
 
     return run_isam2(seq, settings.filter, progress=settings.progress, settings=settings.smoother)
+
+
+def smoother_fixed_lag(seq: Sequence, settings) -> Estimate:
+    """GTSAM's incremental fixed-lag smoother (window ``fixed_lag_s`` seconds)."""
+    from vislam.graph.isam2 import run_fixed_lag
+
+    return run_fixed_lag(seq, settings.filter, progress=settings.progress, settings=settings.smoother)

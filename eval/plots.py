@@ -50,6 +50,8 @@ STYLES: dict[str, dict] = {
                  "zorder": 2.4},
     "smoother-isam2": {"color": "tab:purple", "linestyle": ":", "linewidth": 2.0, "marker": "v",
                        "zorder": 2.5},
+    "smoother-fixed-lag": {"color": "darkred", "linestyle": (0, (3, 1, 1, 1)), "linewidth": 1.6,
+                           "marker": "*", "zorder": 2.45},
 }
 #: One colour per estimator (the colours of :data:`STYLES`).
 COLOURS = {name: style["color"] for name, style in STYLES.items()}

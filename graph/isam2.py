@@ -1,4 +1,5 @@
-"""The incremental smoother: iSAM2, frame by frame (estimator ``smoother-isam2``).
+"""The incremental smoothers: iSAM2 (``smoother-isam2``) and its fixed-lag form
+(``smoother-fixed-lag``), frame by frame.
 
 Each frame adds its pose (predicted from the previous estimate and the interval's twist), the
 motion factor, and the stereo factors of its observations. A track enters the graph at its
@@ -7,6 +8,13 @@ triangulated from the larger-disparity one of the two, and it is dropped for goo
 behind either camera (GTSAM's stereo factor has a zero Jacobian there and iSAM2 would then
 throw an indeterminate-system error). Later observations whose residual against the current
 estimate exceeds ``4 * settings.outlier_threshold_px`` are not added.
+
+The fixed-lag smoother (GTSAM's ``IncrementalFixedLagSmoother``, iSAM2 underneath) runs the same
+loop but keeps only the last ``settings.fixed_lag_s`` seconds: a pose leaves the window that
+long after its frame, a landmark that long after its last observation, marginalised into a prior
+on what stays. Each is reported as it was when it left (its estimate and marginal covariance
+then): a smoother with a bounded delay and bounded cost per frame, between the EKFs (no delay)
+and the full smoothers (the whole drive).
 """
 
 from __future__ import annotations
@@ -38,6 +46,7 @@ from vislam.graph.factors import (
 from vislam.ekf.numerics import NumericalGuard
 from vislam.ekf.runner import finish_estimate, prepare_sequence
 from vislam.graph.marginals import isam2_marginals
+from vislam.ekf.conventions import gtsam_cov_to_estimate
 from vislam.graph.pose_conversions import L, X, estimation_error, named_error, to_pose3
 from vislam.graph.settings import SmootherSettings
 from vislam.graph.twist_smoothness import gap_prior, smoothness_sigma
@@ -67,14 +76,21 @@ class Isam2Result:
     timing: dict
     #: Gap intervals that got a twist-smoothness prior.
     n_gap_priors: int = 0
+    #: Fixed lag only: marginal covariances as each variable left the window (GTSAM convention
+    #: for poses).
+    pose_cov: np.ndarray | None = None
+    landmark_cov: np.ndarray | None = None
 
 
-def _add_gap_prior(graph: gtsam.NonlinearFactorGraph, isam: gtsam.ISAM2, poses: np.ndarray, k: int,
-                   tau: np.ndarray, gaps: np.ndarray, settings: SmootherSettings) -> int:
+def _add_gap_prior(graph: gtsam.NonlinearFactorGraph, isam, poses: np.ndarray, k: int,
+                   tau: np.ndarray, gaps: np.ndarray, settings: SmootherSettings,
+                   first_in_window: int = 0) -> int:
     """At frame ``k``, the twist-smoothness prior for the gap interval ``[k-2, k-1]`` on
     ``X(k-3) .. X(k)`` (graph.twist_smoothness), its sigma measured on the estimates of the
     last frames; linearised at the current estimates and the prediction of ``X(k)`` unless
     ``settings.gap_twist_prior == "exact"``. Returns 1 if added, 0 if too early to measure."""
+    if k - 3 < first_in_window:  # a pose it would touch has left a fixed-lag window
+        return 0
     lo = max(k - _SIGMA_WINDOW, 0)
     for j in range(k - 3, k):  # the latest estimates of the poses the factor touches
         poses[j] = isam.calculateEstimatePose3(X(j)).matrix()
@@ -91,8 +107,9 @@ def _add_gap_prior(graph: gtsam.NonlinearFactorGraph, isam: gtsam.ISAM2, poses: 
 
 
 def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
-                progress: Callable | None = None) -> Isam2Result:
-    """Run iSAM2 over an already cleaned sequence."""
+                progress: Callable | None = None, lag: float | None = None) -> Isam2Result:
+    """Run iSAM2 over an already cleaned sequence; with ``lag`` (seconds) the fixed-lag
+    smoother instead (see the module docstring)."""
     T, M, calib = seq.n_frames, seq.n_tracks, seq.calibration
     tick = time.perf_counter()
     deltas, motion_covs = relative_motions(seq, config)
@@ -108,8 +125,13 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
 
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(settings.isam2_relinearize_threshold)
-    params.relinearizeSkip = int(settings.isam2_relinearize_skip)
-    isam = gtsam.ISAM2(params)
+    skip = settings.isam2_relinearize_skip if lag is None else settings.fixed_lag_relinearize_skip
+    params.relinearizeSkip = max(int(skip), 1)
+    params.enableRelinearization = skip > 0
+    params.setFactorization(settings.isam2_factorization.upper())
+    isam = gtsam.ISAM2(params) if lag is None else gtsam.IncrementalFixedLagSmoother(lag, params)
+    times = seq.timestamps - seq.timestamps[0]
+    window = _Window(T, M) if lag is not None else None
 
     pending: dict[int, int] = {}  # track -> row index of its first usable observation
     dropped = np.zeros(M, dtype=bool)
@@ -133,12 +155,18 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
         values.insert(X(k), to_pose3(predicted))
         poses[k] = predicted
         if k >= 3 and gaps[k - 2]:
-            n_prior += _add_gap_prior(graph, isam, poses, k, seq.dt, gaps, settings)
+            n_prior += _add_gap_prior(graph, isam, poses, k, seq.dt, gaps, settings,
+                                      0 if window is None else window.first_pose)
 
         a, b = frame_ptr[k], frame_ptr[k + 1]
         idx = np.arange(a, b)
         tracks = rows.track[idx]
         # observations of landmarks already in the graph: loose gate, then add
+        if window is not None:  # landmarks marginalised already: their observations are late
+            late = idx[window.gone[tracks]]
+            rejected[k] += late.size
+            idx = idx[~window.gone[tracks]]
+            tracks = rows.track[idx]
         old = idx[in_graph[tracks]]
         if old.size:
             residual, depth = stereo_residuals(poses, landmark_est, calib, rows.subset(old))
@@ -155,6 +183,10 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
                 pending[j] = i
                 continue
             first = pending.pop(j)
+            if window is not None and rows.frame[first] < window.first_pose:
+                rejected[rows.frame[first]] += 1  # its pose left the window: start again
+                pending[j] = i
+                continue
             pair = rows.subset(np.array([first, i]))
             point = triangulate_landmarks(poses, calib, pair, M)
             depths = camera_points(poses, point, calib, pair)[:, 2]
@@ -174,12 +206,22 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
         build_s += time.perf_counter() - tick
 
         tick = time.perf_counter()
+        name = "smoother-isam2" if window is None else "smoother-fixed-lag"
         try:
-            isam.update(graph, values)
+            if window is None:
+                isam.update(graph, values)
+            else:
+                stamps = {X(k): times[k]}
+                stamps.update({L(int(j)): times[k] for j in tracks[in_graph[tracks]]})
+                window.last_seen[tracks[in_graph[tracks]]] = times[k]
+                isam.update(graph, values, stamps)
             poses[k] = isam.calculateEstimatePose3(X(k)).matrix()
+            if window is not None:  # what leaves at the next update: as it is now
+                t_next = times[k + 1] - lag if k + 1 < T else np.inf
+                window.leave(isam, poses, landmark_est, times, in_graph, t_next, k)
         except RuntimeError as exc:
-            raise estimation_error(exc, f"adding frame {k} to iSAM2",
-                                   estimator="smoother-isam2") from None
+            raise estimation_error(exc, f"adding frame {k} to the incremental smoother",
+                                   estimator=name) from None
         optimise_s += time.perf_counter() - tick
         # refresh the landmarks seen now (cheap: only this frame's)
         for j in tracks[in_graph[tracks]]:
@@ -190,14 +232,23 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     # single observations never entered the graph
     for first in pending.values():
         rejected[rows.frame[first]] += 1
+    tracks = np.flatnonzero(in_graph)
+    timing = {"build_s": build_s, "initialise_s": 0.0, "optimise_s": optimise_s, "marginals_s": 0.0}
+    if window is not None:
+        return Isam2Result(
+            isam=isam, poses=window.poses, landmarks=window.landmarks, tracks=tracks,
+            rows=rows.subset(used), rejected=rejected, initialised=initialised, timing=timing,
+            n_gap_priors=n_prior, pose_cov=window.pose_cov, landmark_cov=window.landmark_cov,
+        )
     tick = time.perf_counter()
     try:
+        for _ in range(settings.isam2_final_relinearizations):
+            isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), [], None, None, None, True)
         estimate = isam.calculateEstimate()
     except RuntimeError as exc:
         raise estimation_error(exc, "computing the iSAM2 estimate",
                                estimator="smoother-isam2") from None
     optimise_s += time.perf_counter() - tick
-    tracks = np.flatnonzero(in_graph)
     return Isam2Result(
         isam=isam,
         poses=poses_from_values(estimate, T),
@@ -206,9 +257,36 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
         rows=rows.subset(used),
         rejected=rejected,
         initialised=initialised,
-        timing={"build_s": build_s, "initialise_s": 0.0, "optimise_s": optimise_s, "marginals_s": 0.0},
+        timing={**timing, "optimise_s": optimise_s},
         n_gap_priors=n_prior,
     )
+
+
+class _Window:
+    """What has left a fixed-lag smoother's window: each pose and landmark as it was then."""
+
+    def __init__(self, n_frames: int, n_tracks: int):
+        self.first_pose = 0  # the oldest pose still in the window
+        self.poses = np.full((n_frames, 4, 4), np.nan)
+        self.pose_cov = np.full((n_frames, 6, 6), np.nan)
+        self.landmarks = np.full((n_tracks, 3), np.nan)
+        self.landmark_cov = np.full((n_tracks, 3, 3), np.nan)
+        self.last_seen = np.full(n_tracks, np.inf)  # time of the last observation in the graph
+        self.gone = np.zeros(n_tracks, dtype=bool)
+
+    def leave(self, smoother, poses, landmark_est, times, in_graph, before: float, k: int) -> None:
+        """Record the poses (up to frame ``k``) and landmarks whose time is before ``before``:
+        GTSAM marginalises them at the next update."""
+        while self.first_pose <= k and times[self.first_pose] < before:
+            j = self.first_pose
+            self.poses[j] = smoother.calculateEstimatePose3(X(j)).matrix()
+            self.pose_cov[j] = smoother.marginalCovariance(X(j))
+            poses[j] = self.poses[j]
+            self.first_pose += 1
+        for j in np.flatnonzero(in_graph & ~self.gone & (self.last_seen < before)):
+            self.landmarks[j] = smoother.calculateEstimatePoint3(L(int(j)))
+            self.landmark_cov[j] = smoother.marginalCovariance(L(int(j)))
+            self.gone[j] = True
 
 
 def run_isam2(
@@ -229,25 +307,53 @@ def run_isam2(
         raise named_error(exc, "smoother-isam2") from None
 
 
-def _run_isam2(
+def run_fixed_lag(
     seq: Sequence,
     config: FilterConfig = FilterConfig(),
     *,
     settings: SmootherSettings = SmootherSettings(),
     progress: Callable | None = None,
 ) -> Estimate:
+    """Fixed-lag smoother (GTSAM's ``IncrementalFixedLagSmoother``, window
+    ``settings.fixed_lag_s`` seconds): each pose and landmark as estimated when it left the
+    window, with its marginal covariance then (see the module docstring)."""
+    try:
+        return _run_isam2(seq, config, settings=settings, progress=progress, lag=settings.fixed_lag_s)
+    except EstimationError as exc:
+        raise named_error(exc, "smoother-fixed-lag") from None
+
+
+def _run_isam2(
+    seq: Sequence,
+    config: FilterConfig = FilterConfig(),
+    *,
+    settings: SmootherSettings = SmootherSettings(),
+    progress: Callable | None = None,
+    lag: float | None = None,
+) -> Estimate:
     start = time.perf_counter()
+    name = "smoother-isam2" if lag is None else "smoother-fixed-lag"
     cleaned, cleaning = prepare_sequence(seq, config)
     T, M = cleaned.n_frames, cleaned.n_tracks
-    result = isam2_solve(cleaned, config, settings, progress)
+    factorization = settings.isam2_factorization
+    try:
+        result = isam2_solve(cleaned, config, settings, progress, lag)
+    except EstimationError as exc:
+        if factorization != "cholesky" or "indeterminate" not in str(exc):
+            raise
+        log.warning("%s; running again with QR factorisation", exc)
+        factorization = f"qr (cholesky failed: {exc})"
+        result = isam2_solve(cleaned, config, settings.replace(isam2_factorization="qr"), progress, lag)
     timing = result.timing
-    timing["build_s"] += 0.0
-    est = Estimate.empty("smoother-isam2", cleaned.timestamps, M)
+    est = Estimate.empty(name, cleaned.timestamps, M)
     est.poses = result.poses
     est.landmarks = result.landmarks
     if not np.all(np.isfinite(est.poses)):
-        raise EstimationError("smoother-isam2 produced non-finite poses")
-    if settings.compute_marginals:
+        raise EstimationError(f"{name} produced non-finite poses")
+    if lag is not None:  # its marginals were taken as each variable left the window
+        est.pose_cov = gtsam_cov_to_estimate(result.pose_cov)
+        est.landmark_cov = result.landmark_cov
+    elif settings.compute_marginals:
         tick = time.perf_counter()
         est.pose_cov, est.landmark_cov = isam2_marginals(result.isam, T, result.tracks, M)
         timing["marginals_s"] = time.perf_counter() - tick
@@ -257,7 +363,7 @@ def _run_isam2(
     est.n_rejected = result.rejected
     est.n_initialised = result.initialised
     est.info = {
-        "estimator": "smoother-isam2",
+        "estimator": name,
         "timing": timing,
         "total_s": total,
         "n_landmarks": int(result.tracks.size),
@@ -267,7 +373,10 @@ def _run_isam2(
         "cleaning": cleaning,
         "settings": settings.to_dict(),
         "config": config.to_dict(),
-        "marginals_computed": bool(settings.compute_marginals),
+        "marginals_computed": bool(settings.compute_marginals) or lag is not None,
+        "factorization": factorization,
     }
-    return finish_estimate(est, NumericalGuard("smoother-isam2", cleaned.timestamps),
-                           check_cov=bool(settings.compute_marginals))
+    if lag is not None:
+        est.info["fixed_lag_s"] = float(lag)
+    return finish_estimate(est, NumericalGuard(name, cleaned.timestamps),
+                           check_cov=bool(settings.compute_marginals) or lag is not None)

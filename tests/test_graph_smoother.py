@@ -14,7 +14,7 @@ from vislam.eval.metrics import ate_rmse
 from vislam.eval.simulate import SimConfig, simulate
 from vislam.graph.factors import (NoiseModels, build_graph, keep_multi_observed, relative_motions,
                            triangulate_landmarks, usable_rows)
-from vislam.graph.isam2 import run_isam2
+from vislam.graph.isam2 import run_fixed_lag, run_isam2
 from vislam.graph.marginals import gtsam_marginals, schur_marginals
 from vislam.graph.pose_conversions import L, X, estimation_error
 from vislam.graph.settings import SmootherSettings
@@ -48,6 +48,39 @@ def test_noise_free_isam2_recovers_ground_truth(noise_free):
     est = run_isam2(noise_free.sequence, CONFIG)
     assert ate_rmse(est.poses, noise_free.poses) < 0.01
     assert np.all(np.isfinite(est.pose_cov))
+
+
+def test_fixed_lag_recovers_ground_truth_and_marginalises(noise_free):
+    """A 1 s window on a 12 s noise-free drive: every pose and landmark left the window (and
+    was recorded as it left) with a finite, positive definite marginal covariance."""
+    seq = noise_free.sequence
+    est = run_fixed_lag(seq, CONFIG, settings=SmootherSettings(fixed_lag_s=1.0))
+    assert est.estimator == "smoother-fixed-lag" and est.info["fixed_lag_s"] == 1.0
+    assert ate_rmse(est.poses, noise_free.poses) < 0.01
+    has = est.has_landmark
+    assert has.sum() > 100
+    np.testing.assert_allclose(est.landmarks[has], noise_free.landmarks[has], atol=0.05)
+    assert np.all(np.linalg.eigvalsh(est.pose_cov) > 0)
+    assert np.all(np.linalg.eigvalsh(est.landmark_cov[has]) > 0)
+
+
+def test_fixed_lag_longer_than_the_drive_is_isam2(noisy):
+    """With a window longer than the drive nothing is marginalised: the fixed-lag smoother
+    gives iSAM2's estimate (the same updates, with iSAM2 set to relinearise as the fixed-lag
+    smoother does: every 10 updates, no final rounds). Its marginals are iSAM2's Bayes tree's, at the
+    linearisation points, where smoother-isam2 re-linearises at the final estimate, so only the
+    prior-anchored first pose agrees exactly. A 1.5 s window is a different estimate, not much
+    worse on this drive."""
+    seq = noisy.sequence
+    full = run_isam2(seq, CONFIG, settings=SmootherSettings(isam2_relinearize_skip=10,
+                                                            isam2_final_relinearizations=0))
+    long = run_fixed_lag(seq, CONFIG, settings=SmootherSettings(fixed_lag_s=1e4, fixed_lag_relinearize_skip=10))
+    np.testing.assert_allclose(long.poses, full.poses, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(long.pose_cov[0], full.pose_cov[0], rtol=1e-6, atol=1e-12)
+    short = run_fixed_lag(seq, CONFIG, settings=SmootherSettings(fixed_lag_s=1.5))
+    assert np.abs(short.poses - full.poses).max() > 1e-4
+    assert ate_rmse(short.poses, noisy.poses) < 2 * ate_rmse(full.poses, noisy.poses)
+    assert np.all(np.linalg.eigvalsh(short.pose_cov) > 0)
 
 
 @pytest.mark.slow

@@ -30,7 +30,7 @@ from vislam.eval.registry import ESTIMATOR_NAMES, get_estimator
 from vislam.eval.simulate import SimConfig, simulate
 
 EKFS = ("dead-reckoning", "mapping", "ekf-decoupled", "ekf-joint", "ekf-invariant")
-SMOOTHERS = ("smoother", "smoother-isam2")
+SMOOTHERS = ("smoother", "smoother-isam2", "smoother-fixed-lag")
 assert set(EKFS + SMOOTHERS) == set(ESTIMATOR_NAMES)
 
 #: Examples per property test; the environment variable scales them for a long local sweep.

@@ -33,8 +33,9 @@ def test_registry_names_and_unknown_name():
     from vislam.ekf.errors import InputError
     from vislam.eval.registry import DEFAULT_BENCH, parse_estimator_list
 
-    assert ESTIMATOR_NAMES[0] == "dead-reckoning" and ESTIMATOR_NAMES[-1] == "smoother-isam2"
-    assert "smoother-isam2" not in DEFAULT_BENCH and len(DEFAULT_BENCH) == 6
+    assert ESTIMATOR_NAMES[0] == "dead-reckoning" and ESTIMATOR_NAMES[-1] == "smoother-fixed-lag"
+    assert "smoother-isam2" in DEFAULT_BENCH and "smoother-fixed-lag" not in DEFAULT_BENCH
+    assert len(DEFAULT_BENCH) == 7
     with pytest.raises(InputError, match="ekf-joint"):
         get_estimator("kalman")
     assert parse_estimator_list("smoother, dead-reckoning", DEFAULT_BENCH) == ["dead-reckoning", "smoother"]
