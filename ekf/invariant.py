@@ -55,6 +55,7 @@ Output. ``Estimate.pose_cov`` converts the pose block with
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -259,6 +260,11 @@ def run_invariant(
     ``progress`` is called after each frame with the number of frames finished.
     """
     seq, info = prepare_sequence(seq, config)
+    if config.keep_landmarks:
+        logging.getLogger(__name__).warning(
+            "%s with keep_landmarks updates one dense covariance of every landmark ever seen "
+            "(%d tracks): O(n^2) per frame, for short drives; ekf-joint keeps them exactly at a "
+            "fraction of the cost (ekf/retired.py)", ESTIMATOR_NAME, seq.n_tracks)
     guard = NumericalGuard(ESTIMATOR_NAME, seq.timestamps)
     with blas_limits(config):
         est = _run(seq, config, progress, guard)
