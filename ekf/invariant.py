@@ -87,6 +87,7 @@ from vislam.ekf.geometry import (
     so3_log,
 )
 from vislam.ekf.prediction import se3_exp_single, se3_left_jacobian, so3_exp_and_left_jacobian
+from vislam.ekf.retired_invariant import InvariantRetired
 from vislam.ekf.runner import blas_limits, finish_estimate, interval_twists, prepare_sequence
 from vislam.ekf.sequence import Sequence
 
@@ -234,6 +235,8 @@ class _State:
     lm_id: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     anchor_R: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
     anchor_p: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    # keep_landmarks: ended tracks' landmarks, as regressions on this state (ekf.retired)
+    retired: InvariantRetired | None = None
 
     def world_landmarks(self, slots: np.ndarray, off: int) -> tuple[np.ndarray, np.ndarray]:
         """World means (k, 3) and covariances (k, 3, 3) of ``slots``."""
@@ -254,20 +257,19 @@ def run_invariant(
     seq: Sequence,
     config: FilterConfig = FilterConfig(),
     progress: Callable[[int], None] | None = None,
+    textbook: bool = False,
 ) -> Estimate:
     """Run the right-invariant EKF over ``seq``; see the module docstring for the model.
 
-    ``progress`` is called after each frame with the number of frames finished.
+    ``progress`` is called after each frame with the number of frames finished. With
+    ``config.keep_landmarks`` the landmarks of ended tracks stay refined through
+    :class:`ekf.retired_invariant.InvariantRetired`, or in one dense covariance with ``textbook``
+    (the same numbers at ``O(n^2)`` per frame: the reference of its test).
     """
     seq, info = prepare_sequence(seq, config)
-    if config.keep_landmarks:
-        logging.getLogger(__name__).warning(
-            "%s with keep_landmarks updates one dense covariance of every landmark ever seen "
-            "(%d tracks): O(n^2) per frame, for short drives; ekf-joint keeps them exactly at a "
-            "fraction of the cost (ekf/retired.py)", ESTIMATOR_NAME, seq.n_tracks)
     guard = NumericalGuard(ESTIMATOR_NAME, seq.timestamps)
     with blas_limits(config):
-        est = _run(seq, config, progress, guard)
+        est = _run(seq, config, progress, guard, textbook)
     est.info.update(info)
     est.info.update(
         {
@@ -279,7 +281,8 @@ def run_invariant(
     return finish_estimate(est, guard)
 
 
-def _run(seq: Sequence, config: FilterConfig, progress, guard: NumericalGuard) -> Estimate:
+def _run(seq: Sequence, config: FilterConfig, progress, guard: NumericalGuard,
+         textbook: bool = False) -> Estimate:
     cal = seq.calibration
     M = cal.M
     cam_T_imu = np.asarray(cal.cam_T_imu, dtype=float)
@@ -307,6 +310,7 @@ def _run(seq: Sequence, config: FilterConfig, progress, guard: NumericalGuard) -
         tracks=np.zeros(0, dtype=np.int64),
         P=P0,
         bias=np.zeros(3) if use_bias else None,
+        retired=InvariantRetired(off) if config.keep_landmarks and not textbook else None,
     )
     slot_of = -np.ones(seq.n_tracks, dtype=np.int64)
     done = np.zeros(seq.n_tracks, dtype=bool)
@@ -336,7 +340,7 @@ def _run(seq: Sequence, config: FilterConfig, progress, guard: NumericalGuard) -
         n_converted += _convert_linear(st, config, imu_T_cam, off)
         if n_num + n_num_new:
             guard.reject(t, "innovation covariance or triangulation not finite", n_num + n_num_new)
-        if not config.keep_landmarks:
+        if not config.keep_landmarks or st.retired is not None:
             _marginalise(st, last_frame, t, off, slot_of, done, est)
         est.poses[t] = st.T
         pose_P[t] = st.P[:6, :6]
@@ -353,6 +357,8 @@ def _run(seq: Sequence, config: FilterConfig, progress, guard: NumericalGuard) -
     if st.tracks.size:
         slots = np.arange(st.tracks.size)
         est.landmarks[st.tracks], est.landmark_cov[st.tracks] = st.world_landmarks(slots, off)
+    if st.retired is not None and st.retired.n:
+        est.landmarks[st.retired.track], est.landmark_cov[st.retired.track] = st.retired.world(st.P)
     est.pose_cov = left_cov_to_estimate(est.poses, pose_P)
     est.pose_cov = 0.5 * (est.pose_cov + np.swapaxes(est.pose_cov, -1, -2))
     if config.landmark_parameterisation == "inverse-depth":
@@ -373,12 +379,14 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConf
     if st.bias is not None:
         u[3:] -= st.bias
     twist = tau * u
+    T_start = st.T
     if st.lm_id.any():
         ok = _propagate_groups(st, twist, tau, W_chol, config, off)
         st.T = st.T @ se3_exp_single(twist)
         return ok
     B = noise_jacobian(st.T, st.landmarks, twist, st.bias is not None)
     P = st.P
+    F = None
     if st.bias is not None:
         # Imperfect IEKF: the bias error acts as angular-velocity noise -xi_b.
         F = -tau * B[:, 3:]  # (n, 3)
@@ -391,8 +399,22 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConf
     if not finite_norm2(BL):
         return False
     P += BL @ BL.T
+    _predict_retired(st, T_start, twist, tau, W_chol, config, BL, F)
     st.T = st.T @ se3_exp_single(twist)
     return True
+
+
+def _predict_retired(st: _State, T_start, twist, tau, W_chol, config, BL, F) -> None:
+    """The retired landmarks' share of a prediction (RI-1): ``BL`` (dim A, 6) the twist noise
+    rows of the active state, ``F`` (dim A, 3) its bias coupling (None without a bias)."""
+    if st.retired is None or not st.retired.n:
+        return
+    N_A = BL
+    if st.bias is not None:
+        walk = np.zeros((BL.shape[0], 3))
+        walk[B_IDX] = np.sqrt(config.gyro_bias_walk**2 * tau) * np.eye(3)
+        N_A = np.concatenate([BL, walk], axis=1)
+    st.retired.predict(T_start, twist, tau, W_chol, N_A, F, st.P)
 
 
 def _propagate_groups(st: _State, twist, tau: float, W_chol, config: FilterConfig, off: int) -> bool:
@@ -404,6 +426,7 @@ def _propagate_groups(st: _State, twist, tau: float, W_chol, config: FilterConfi
     B = noise_jacobian(st.T, st.landmarks[eu], twist, st.bias is not None)  # rows g
     P = st.P
     gg = np.ix_(g, g)
+    F = None
     if st.bias is not None:
         F = -tau * B[:, 3:]
         Pb = P[:, B_IDX].copy()
@@ -416,6 +439,14 @@ def _propagate_groups(st: _State, twist, tau: float, W_chol, config: FilterConfi
     if not finite_norm2(BL):
         return False
     P[gg] += BL @ BL.T
+    if st.retired is not None and st.retired.n:  # rows g of the active state, zero elsewhere
+        BL_all = np.zeros((P.shape[0], 6))
+        BL_all[g] = BL
+        F_all = None
+        if F is not None:
+            F_all = np.zeros((P.shape[0], 3))
+            F_all[g] = F
+        _predict_retired(st, st.T, twist, tau, W_chol, config, BL_all, F_all)
     return True
 
 
@@ -545,17 +576,20 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
     x_prior = st.landmarks
     st.P = P_new
     st.T, st.landmarks, st.bias = retract(st.T, st.landmarks, delta, st.bias)
+    C_active = None
     if st.lm_id.any():
         ids = np.flatnonzero(st.lm_id)
         st.landmarks[ids] = x_prior[ids] + delta[off:].reshape(-1, 3)[ids]  # additive error
-        _transport_inverse_depth(st, ids, x_prior[ids], off)
+        C_active = _transport_inverse_depth(st, ids, x_prior[ids], off)
+    if st.retired is not None and st.retired.n:
+        st.retired.update(delta, C_active)
     return k, n_rej, n_num
 
 
-def _transport_inverse_depth(st: _State, ids: np.ndarray, x_prior: np.ndarray, off: int) -> None:
+def _transport_inverse_depth(st: _State, ids: np.ndarray, x_prior: np.ndarray, off: int) -> np.ndarray:
     """Keep the world-change directions unobservable for inverse-depth slots ``ids`` after an
     update (module docstring): ``P <- T P T^T``, ``T`` adding ``N_j(x+) - N_j(x-)`` (ID-7)
-    times the pose rows to the rows of slot j."""
+    times the pose rows to the rows of slot j. Returns those rows ``C`` (3K, 6)."""
     R_a, p_a = st.anchor_R[ids], st.anchor_p[ids]
     C = np.zeros((st.lm_id.size, 3, 6))
     C[ids] = idp.gauge_rows(st.landmarks[ids], R_a, p_a) - idp.gauge_rows(x_prior, R_a, p_a)
@@ -563,6 +597,7 @@ def _transport_inverse_depth(st: _State, ids: np.ndarray, x_prior: np.ndarray, o
     P = st.P
     P[off:] += C @ P[:6]
     P[:, off:] += P[:, :6] @ C.T
+    return C
 
 
 def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off, slot_of):
@@ -627,6 +662,8 @@ def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off
     Pn[bi, bj] += Cn
     K0 = st.tracks.size
     st.P = Pn
+    if st.retired is not None:
+        st.retired.augment(3 * k)
     st.landmarks = np.vstack([st.landmarks, lm_new])
     st.tracks = np.concatenate([st.tracks, tracks])
     slot_of[tracks] = K0 + np.arange(k)
@@ -643,11 +680,15 @@ def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off
 def _convert_linear(st: _State, config: FilterConfig, imu_T_cam: np.ndarray, off: int) -> int:
     """Inverse-depth slots whose linearity index (ID-5) seen from the current camera is below
     ``inverse_depth_linearity`` join the group (:func:`_to_group`); returns how many."""
-    if config.inverse_depth_linearity <= 0 or not st.lm_id.any():
+    if config.inverse_depth_linearity <= 0:
+        return 0
+    centre = st.T[:3, :3] @ imu_T_cam[:3, 3] + st.T[:3, 3]
+    if st.retired is not None:
+        st.retired.convert_linear(st.P, centre, config.inverse_depth_linearity)
+    if not st.lm_id.any():
         return 0
     ids = np.flatnonzero(st.lm_id)
     rho_rows = off + 3 * ids + 2
-    centre = st.T[:3, :3] @ imu_T_cam[:3, 3] + st.T[:3, 3]
     L = idp.linearity_index(
         st.landmarks[ids], st.P[rho_rows, rho_rows], st.anchor_R[ids], st.anchor_p[ids], centre
     )
@@ -668,6 +709,8 @@ def _to_group(st: _State, ids: np.ndarray, off: int) -> None:
     P = st.P
     P[rows] = J @ P[rows] + L @ P[R_IDX]
     P[:, rows] = np.einsum("nkj,kij->nki", P[:, rows], J) + np.einsum("nj,kij->nki", P[:, R_IDX], L)
+    if st.retired is not None:
+        st.retired.active_to_group(rows, J, L)
     st.landmarks[ids] = m
     st.lm_id[ids] = False
 
@@ -682,10 +725,15 @@ def _marginalise(st: _State, last_frame, t, off, slot_of, done, est: Estimate) -
     gone = np.flatnonzero(ended)
     keep = np.flatnonzero(~ended)
     tr = st.tracks[gone]
-    est.landmarks[tr], est.landmark_cov[tr] = st.world_landmarks(gone, off)
     done[tr] = True
     slot_of[tr] = -1
     idx = np.concatenate([np.arange(off), (off + 3 * keep[:, None] + np.arange(3)).ravel()])
+    if st.retired is None:
+        est.landmarks[tr], est.landmark_cov[tr] = st.world_landmarks(gone, off)
+    else:  # keep_landmarks: they stay refined as regressions on what remains
+        rows = off + 3 * gone[:, None] + np.arange(3)
+        st.retired.retire(st.P, idx, rows, st.landmarks[gone], st.landmarks[gone], tr,
+                          st.lm_id[gone], st.anchor_R[gone], st.anchor_p[gone])
     st.P = st.P.take(idx, axis=0).take(idx, axis=1)
     st.landmarks = st.landmarks[keep]
     st.tracks = st.tracks[keep]

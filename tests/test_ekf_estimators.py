@@ -140,6 +140,28 @@ def test_keep_landmarks_equals_the_dense_textbook_update(noisy_sim, param, linea
     assert fast.info["max_state_dim"] == dense.info["max_state_dim"]
 
 
+@pytest.mark.parametrize("param, bias", [("inverse-depth", True), ("inverse-depth", False),
+                                         ("euclidean", True), ("euclidean", False)])
+def test_invariant_keep_landmarks_equals_the_dense_textbook_update(noisy_sim, param, bias):
+    """ekf-invariant's ``keep_landmarks`` through :class:`ekf.retired_invariant.InvariantRetired`
+    (the retired landmarks take the pose's twist noise and the bias coupling, RI-1, and the
+    group retraction) gives the numbers of its dense form to 1e-9, as ekf-joint's does."""
+    from vislam.ekf.invariant import run_invariant
+
+    seq = _head(noisy_sim.sequence, 70)
+    cfg = BASE.replace(keep_landmarks=True, landmark_parameterisation=param, gyro_bias=bias)
+    fast, dense = run_invariant(seq, cfg), run_invariant(seq, cfg, textbook=True)
+    has = dense.has_landmark
+    assert has.sum() > 300 and np.array_equal(has, fast.has_landmark)
+    np.testing.assert_allclose(fast.poses, dense.poses, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fast.pose_cov, dense.pose_cov, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fast.landmarks[has], dense.landmarks[has], rtol=0, atol=1e-9)
+    scale = np.abs(dense.landmark_cov[has]).max(axis=(1, 2))[:, None, None]
+    np.testing.assert_array_less(np.abs(fast.landmark_cov[has] - dense.landmark_cov[has]) / scale, 1e-9)
+    marg = run_invariant(seq, cfg.replace(keep_landmarks=False))
+    assert np.abs(fast.landmarks[has] - marg.landmarks[has]).max() > 1e-3
+
+
 @pytest.mark.parametrize("linearisation", ["standard", "fej", "oc"])
 def test_joint_update_matches_dense_kalman_reference(noisy_sim, linearisation):
     """The structured stacked update equals the textbook dense Joseph-form update (followed, for
