@@ -55,7 +55,6 @@ Output. ``Estimate.pose_cov`` converts the pose block with
 
 from __future__ import annotations
 
-import logging
 import time
 from dataclasses import dataclass, field
 from typing import Callable
