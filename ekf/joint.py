@@ -34,7 +34,7 @@ from vislam.ekf.estimate import Estimate
 from vislam.ekf.numerics import NumericalGuard, UpdateRejected, all_finite, finite_norm2, finite_rows
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.geometry import adjoint, hat, se3_inv
-from vislam.ekf.retired import RetiredLandmarks
+from vislam.ekf.retired import RetiredLandmarks, oc_transport_rows
 from vislam.ekf.prediction import (
     se3_exp_single,
     bias_transition,
@@ -249,30 +249,15 @@ class JointState:
     def update_retired(self, dx, E, U_prior, dm, x_prior) -> None:
         """The retired landmarks' share of an update (``dx`` the active increment) and of the
         transport that follows it (:meth:`ekf.retired.RetiredLandmarks.update`)."""
-        C_a = None
-        if self.linearisation == "oc":
-            if self.inverse_depth and self.lm_id.any():
-                C_a = self.transport_rows(dm, x_prior, U_prior)
-            else:
-                C_a = np.zeros((self.n_landmarks, 3, 6))
-                C_a[:, :, 3:] = hat(dm) @ U_prior[:3, :3].T
-            C_a = C_a.reshape(-1, 6)
+        C_a = self.transport_rows(dm, x_prior, U_prior) if self.linearisation == "oc" else None
         self.retired.update(dx, self.linearisation, E, C_a, U_prior)
 
     def transport_rows(self, dm: np.ndarray, x_prior: np.ndarray, U_prior: np.ndarray) -> np.ndarray:
-        """The landmark rows ``C`` (3n, 6) of :func:`transport` with inverse-depth landmarks in
-        the state: ``C_j = (N_j- - N_j+) Ad(U-)^-1`` for each (``N_j`` the gauge rows: ID-7 for
-        an inverse-depth one, ``[I, -m^]`` for a Euclidean one, where it is
-        :func:`gauge_transport`'s ``[0, dm^ R-^T]``), so that ``T N(U-, x-) = N(E U-, x+)``."""
-        C = np.zeros((self.n_landmarks, 3, 6))
-        ids = np.flatnonzero(self.lm_id)
-        eu = np.flatnonzero(~self.lm_id)
-        if eu.size:
-            C[eu, :, 3:] = hat(dm[eu]) @ U_prior[:3, :3].T
-        R_a, p_a = self.anchor_R[ids], self.anchor_p[ids]
-        dN = idp.gauge_rows(x_prior[ids], R_a, p_a) - idp.gauge_rows(self.lm_mean[ids], R_a, p_a)
-        C[ids] = dN @ adjoint(se3_inv(U_prior))
-        return C.reshape(-1, 6)
+        """The landmark rows ``C`` (3n, 6) of :func:`transport` (:func:`ekf.retired.oc_transport_rows`
+        of the active landmarks; for Euclidean ones :func:`gauge_transport`'s ``[0, dm^ R-^T]``)."""
+        inverse = self.lm_id if self.inverse_depth else np.zeros(self.n_landmarks, dtype=bool)
+        return oc_transport_rows(dm, x_prior, self.lm_mean, inverse, self.anchor_R, self.anchor_p,
+                                 U_prior).reshape(-1, 6)
 
     # --- landmark initialisation and marginalisation ------------------------------------
     def initialise(

@@ -47,6 +47,24 @@ def _blocks(F: np.ndarray) -> np.ndarray:
     return F.reshape(-1, 3, F.shape[1])
 
 
+def oc_transport_rows(dm: np.ndarray, x_prior: np.ndarray, x_new: np.ndarray, inverse: np.ndarray,
+                      anchor_R: np.ndarray, anchor_p: np.ndarray, U_prior: np.ndarray) -> np.ndarray:
+    """The landmark rows ``C`` (n, 3, 6) of ekf-joint's observability-constrained transport
+    (:func:`ekf.joint.transport`) after an update that moved landmarks ``x_prior`` to ``x_new``
+    by ``dm``: ``C_j = (N_j- - N_j+) Ad(U-)^-1`` (``N_j`` the gauge rows: ID-7 for an
+    inverse-depth one, ``[I, -m^]`` for a Euclidean one, where it is ``[0, dm^ R-^T]``), so that
+    ``T N(U-, x-) = N(E U-, x+)``. For active and retired landmarks alike."""
+    C = np.zeros((dm.shape[0], 3, 6))
+    eu, ids = np.flatnonzero(~inverse), np.flatnonzero(inverse)
+    if eu.size:
+        C[eu, :, 3:] = hat(dm[eu]) @ U_prior[:3, :3].T
+    if ids.size:
+        R_a, p_a = anchor_R[ids], anchor_p[ids]
+        dN = idp.gauge_rows(x_prior[ids], R_a, p_a) - idp.gauge_rows(x_new[ids], R_a, p_a)
+        C[ids] = dN @ adjoint(se3_inv(U_prior))
+    return C
+
+
 def _solve_spd(P: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``P^-1 B`` for a symmetric positive definite ``P`` (Cholesky; LU if that fails)."""
     try:
@@ -138,8 +156,8 @@ class RetiredLandmarks:
                C_active: np.ndarray | None, U_prior: np.ndarray) -> None:
         """The mean moves by ``F dx`` (``dx`` the active state's increment); then the transport
         (RL-3): ``T_A`` is ``Ad(E)`` on the pose and ``C_active`` (3m, 6) on the active landmarks,
-        ``C_r`` the retired rows' own (:meth:`transport_rows`) with "oc"; "fej" moves the pose
-        only, "standard" does not transport."""
+        ``C_r`` the retired rows' own (:func:`oc_transport_rows`) with "oc"; "fej" moves the
+        pose only, "standard" does not transport."""
         dm = (self.F @ dx).reshape(-1, 3)
         x_prior = self.mean
         self.mean = self.mean + dm
@@ -148,35 +166,18 @@ class RetiredLandmarks:
         F = self.F
         pose = F[:, :6]
         if linearisation == "oc":
-            pose += self.transport_rows(dm, x_prior, U_prior).reshape(-1, 6)
+            C = oc_transport_rows(dm, x_prior, self.mean, self.inverse, self.anchor_R,
+                                  self.anchor_p, U_prior)
+            pose += C.reshape(-1, 6)
             if C_active is not None and C_active.size:
                 pose -= F[:, F.shape[1] - C_active.shape[0] :] @ C_active
         F[:, :6] = pose @ np.linalg.inv(adjoint(E))
-
-    def transport_rows(self, dm: np.ndarray, x_prior: np.ndarray, U_prior: np.ndarray) -> np.ndarray:
-        """``C`` (n, 3, 6) of the observability-constrained transport, as
-        :meth:`ekf.joint.JointState.transport_rows` gives it for active landmarks."""
-        C = np.zeros((self.n, 3, 6))
-        eu, ids = np.flatnonzero(~self.inverse), np.flatnonzero(self.inverse)
-        if eu.size:
-            C[eu, :, 3:] = hat(dm[eu]) @ U_prior[:3, :3].T
-        if ids.size:
-            R_a, p_a = self.anchor_R[ids], self.anchor_p[ids]
-            dN = idp.gauge_rows(x_prior[ids], R_a, p_a) - idp.gauge_rows(self.mean[ids], R_a, p_a)
-            C[ids] = dN @ adjoint(se3_inv(U_prior))
-        return C
 
     def convert_linear(self, P: np.ndarray, centre: np.ndarray, threshold: float,
                        linearisation: str) -> None:
         """(ID-6) Retired inverse-depth landmarks whose linearity index seen from ``centre`` is
         below ``threshold`` become world points, as active ones do (``P`` the active covariance)."""
-        ids = np.flatnonzero(self.inverse)
-        if threshold <= 0 or ids.size == 0:
-            return
-        f = self.F[3 * ids + 2]  # the inverse-depth rows
-        var_rho = np.einsum("nm,nm->n", f @ P, f) + self.E[ids, 2, 2]
-        L = idp.linearity_index(self.mean[ids], var_rho, self.anchor_R[ids], self.anchor_p[ids], centre)
-        ids = ids[L < threshold]
+        ids = self.linear_enough(P, centre, threshold)
         if ids.size == 0:
             return
         x, R_a, p_a = self.mean[ids], self.anchor_R[ids], self.anchor_p[ids]
@@ -188,12 +189,28 @@ class RetiredLandmarks:
         self.first[ids] = idp.world_point(self.first[ids], R_a, p_a)
         self.inverse[ids] = False
 
+    def linear_enough(self, P: np.ndarray, centre: np.ndarray, threshold: float) -> np.ndarray:
+        """The inverse-depth landmarks whose linearity index (ID-5) seen from ``centre`` is
+        below ``threshold``, their inverse-depth variance from RL-1 (``P`` the active covariance)."""
+        ids = np.flatnonzero(self.inverse)
+        if threshold <= 0 or ids.size == 0:
+            return ids[:0]
+        f = self.F[3 * ids + 2]  # the inverse-depth rows
+        var_rho = np.einsum("nm,nm->n", f @ P, f) + self.E[ids, 2, 2]
+        L = idp.linearity_index(self.mean[ids], var_rho, self.anchor_R[ids], self.anchor_p[ids], centre)
+        return ids[L < threshold]
+
     def world(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World means (n, 3) and covariances (n, 3, 3), first order for inverse-depth ones."""
         mean, cov = self.mean.copy(), self.covariances(P)
+        self._inverse_depth_to_world(mean, cov)
+        return mean, cov
+
+    def _inverse_depth_to_world(self, mean: np.ndarray, cov: np.ndarray) -> None:
+        """(ID-6) The inverse-depth landmarks' rows of ``mean`` and ``cov`` (their own
+        coordinates on entry) as world points, in place; first order for the covariance."""
         i = np.flatnonzero(self.inverse)
         if i.size:
             J = idp.world_jacobian(self.mean[i], self.anchor_R[i])
             mean[i] = idp.world_point(self.mean[i], self.anchor_R[i], self.anchor_p[i])
             cov[i] = J @ cov[i] @ J.transpose(0, 2, 1)
-        return mean, cov

@@ -94,13 +94,7 @@ class InvariantRetired(RetiredLandmarks):
     def convert_linear(self, P, centre, threshold) -> None:
         """Retired inverse-depth landmarks whose linearity index is below ``threshold`` join
         the group (ID-6): ``F' = J F + l^ S_R``, ``E' = J E J^T``."""
-        ids = np.flatnonzero(self.inverse)
-        if threshold <= 0 or ids.size == 0:
-            return
-        f = self.F[3 * ids + 2]
-        var_rho = np.einsum("nm,nm->n", f @ P, f) + self.E[ids, 2, 2]
-        Lidx = idp.linearity_index(self.mean[ids], var_rho, self.anchor_R[ids], self.anchor_p[ids], centre)
-        ids = ids[Lidx < threshold]
+        ids = self.linear_enough(P, centre, threshold)
         if ids.size == 0:
             return
         x, R_a = self.mean[ids], self.anchor_R[ids]
@@ -127,9 +121,5 @@ class InvariantRetired(RetiredLandmarks):
             Lh = hat(self.mean[g])
             c = cross[g] @ Lh.transpose(0, 2, 1)  # cov(x_j, xi_R) (-l^)^T
             cov[g] = cov_x[g] - c - c.transpose(0, 2, 1) + Lh @ P[R_COLS, R_COLS] @ Lh.transpose(0, 2, 1)
-        i = np.flatnonzero(self.inverse)
-        if i.size:
-            J = idp.world_jacobian(self.mean[i], self.anchor_R[i])
-            mean[i] = idp.world_point(self.mean[i], self.anchor_R[i], self.anchor_p[i])
-            cov[i] = J @ cov_x[i] @ J.transpose(0, 2, 1)
+        self._inverse_depth_to_world(mean, cov)
         return mean, cov
