@@ -132,6 +132,7 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     isam = gtsam.ISAM2(params) if lag is None else gtsam.IncrementalFixedLagSmoother(lag, params)
     times = seq.timestamps - seq.timestamps[0]
     window = _Window(T, M) if lag is not None else None
+    name = "smoother-isam2" if window is None else "smoother-fixed-lag"
 
     pending: dict[int, int] = {}  # track -> row index of its first usable observation
     dropped = np.zeros(M, dtype=bool)
@@ -206,7 +207,6 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
         build_s += time.perf_counter() - tick
 
         tick = time.perf_counter()
-        name = "smoother-isam2" if window is None else "smoother-fixed-lag"
         try:
             if window is None:
                 isam.update(graph, values)
