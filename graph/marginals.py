@@ -161,41 +161,45 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
             f"marginals: the pose information matrix is not positive definite{where} "
             f"(an under-constrained pose)") from None
 
-    def L_block(rows: np.ndarray, j0: int) -> np.ndarray:
-        """Dense L[rows, j0:j0+6] from the banded factor."""
-        cols = j0 + np.arange(6)
-        d = rows[:, None] - cols[None, :]
-        ok = (d >= 0) & (d <= w)
-        out = np.zeros(d.shape)
-        out[ok] = Lb[d[ok], np.broadcast_to(cols, d.shape)[ok]]
+    def L_block(first: int, m: int, j0: int) -> np.ndarray:
+        """Dense ``L[first:first + m, j0:j0 + 6]`` from the banded factor (``first >= j0``,
+        inside the band): column ``j0 + c`` of ``L`` holds ``Lb[i - j0 - c, j0 + c]`` at row ``i``."""
+        out = np.zeros((m, 6))
+        for c in range(6):
+            top = max(first, j0 + c)  # the diagonal and below
+            out[top - first:, c] = Lb[top - j0 - c:first + m - j0 - c, j0 + c]
         return out
 
-    # landmarks grouped by the first pose they touch
+    # each landmark's entries of H_lp, columns relative to the first pose it touches; the
+    # landmarks grouped by that pose (their covariances are computed together, below)
     H_lp_csr = H_lp
+    nnz_rows = np.repeat(np.arange(3 * n_lm), np.diff(H_lp_csr.indptr))
+    entry_lm, entry_row = nnz_rows // 3, nnz_rows % 3
     first_pose = np.full(n_lm, n_frames, dtype=np.int64)
-    for i in range(n_lm):
-        cols = H_lp_csr.indices[H_lp_csr.indptr[3 * i]:H_lp_csr.indptr[3 * i + 3]]
-        if cols.size:
-            first_pose[i] = cols.min() // 6
-    by_first = [[] for _ in range(n_frames + 1)]
-    for i, p in enumerate(first_pose):
-        by_first[p].append(i)
+    np.minimum.at(first_pose, entry_lm, H_lp_csr.indices // 6)
+    entry_col = H_lp_csr.indices - 6 * first_pose[entry_lm]
+    lm_order = np.argsort(first_pose, kind="stable")
+    group_start = np.searchsorted(first_pose[lm_order], np.arange(n_frames + 2))
+    slot = np.empty(n_lm, dtype=np.int64)  # a landmark's place in its group
+    slot[lm_order] = np.arange(n_lm) - group_start[first_pose[lm_order]]
+    entry_order = np.argsort(first_pose[entry_lm], kind="stable")
+    entry_start = np.searchsorted(first_pose[entry_lm][entry_order], np.arange(n_frames + 1))
 
     K = 6 * (wp + 1)
     window = np.zeros((K, K))  # Sigma over entries [6p, 6p + K)
     pose_cov = np.empty((n_frames, 6, 6))
     pair_cov = np.zeros((max(n_frames - 1, 0), 6, 6))
     landmark_cov = np.full((n_tracks, 3, 3), np.nan)
-    for i in by_first[n_frames]:  # landmarks with no pose factor
-        landmark_cov[tracks[i]] = A_l[i]
+    unobserved = lm_order[group_start[n_frames]:group_start[n_frames + 1]]  # no pose factor
+    landmark_cov[tracks[unobserved]] = A_l[unobserved]
     for p in range(n_frames - 1, -1, -1):
         j0 = 6 * p
         m = min(K - 6, n - j0 - 6)  # rows of the band below this block
-        L_jj = L_block(j0 + np.arange(6), j0)
+        L_jj = L_block(j0, 6, j0)
         L_jj_inv = np.linalg.inv(L_jj)
         new = np.zeros((K, K))
         if m > 0:
-            L_sj = L_block(j0 + 6 + np.arange(m), j0)
+            L_sj = L_block(j0 + 6, m, j0)
             S_ss = window[:m, :m]
             S_sj = -(S_ss @ L_sj) @ L_jj_inv
             S_jj = L_jj_inv.T @ L_jj_inv - S_sj.T @ L_sj @ L_jj_inv
@@ -209,22 +213,34 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
         pose_cov[p] = new[:6, :6]
         if pairs and p < n_frames - 1:
             pair_cov[p] = new[:6, 6:12]
-        for i in by_first[p] if landmarks else ():
-            a, z = H_lp_csr.indptr[3 * i], H_lp_csr.indptr[3 * i + 3]
-            rows = np.repeat(np.arange(3), np.diff(H_lp_csr.indptr[3 * i:3 * i + 4]))
-            cols = H_lp_csr.indices[a:z] - j0
-            if cols.max() >= K:
-                raise EstimationError(f"marginals: internal band error at {key_name(L(int(tracks[i])))}")
-            H_row = np.zeros((3, K))
-            np.add.at(H_row, (rows, cols), H_lp_csr.data[a:z])
-            B = -A_l[i] @ H_row
-            cov = A_l[i] + B @ new @ B.T
-            landmark_cov[tracks[i]] = 0.5 * (cov + cov.T)
+        group = lm_order[group_start[p]:group_start[p + 1]]
+        if landmarks and group.size:
+            landmark_cov[tracks[group]] = _landmark_covariances(
+                A_l[group], new, slot, entry_order[entry_start[p]:entry_start[p + 1]],
+                entry_lm, entry_row, entry_col, H_lp_csr.data, tracks, K)
     if pairs:  # log det H = log det H_ll + log det S (the Schur complement's Cholesky)
         log_det = float(np.sum(np.linalg.slogdet(H_ll)[1])) if n_lm else 0.0
         log_det += 2.0 * float(np.sum(np.log(Lb[0])))
         return pose_cov, landmark_cov, pair_cov, log_det
     return pose_cov, landmark_cov
+
+
+def _landmark_covariances(A_g: np.ndarray, window: np.ndarray, slot: np.ndarray,
+                          entries: np.ndarray, entry_lm: np.ndarray, entry_row: np.ndarray,
+                          entry_col: np.ndarray, data: np.ndarray, tracks: np.ndarray,
+                          K: int) -> np.ndarray:
+    """Step 4 of the module docstring for the landmarks whose first pose is the window's:
+    ``A_l + B Sigma_pp B^T`` with ``B = -A_l H_lp`` over the poses their tracks span (``A_g``
+    their ``H_ll^-1``, ``entries`` their nonzeros of ``H_lp``, columns from the first pose)."""
+    span = int(entry_col[entries].max()) + 1
+    if span > K:
+        raise EstimationError("marginals: internal band error at "
+                              f"{key_name(L(int(tracks[entry_lm[entries][np.argmax(entry_col[entries])]])))}")
+    H_rows = np.zeros((len(A_g), 3, span))
+    np.add.at(H_rows, (slot[entry_lm[entries]], entry_row[entries], entry_col[entries]), data[entries])
+    B = -A_g @ H_rows
+    cov = A_g + (B @ window[:span, :span]) @ np.swapaxes(B, 1, 2)
+    return 0.5 * (cov + np.swapaxes(cov, 1, 2))
 
 
 def batch_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,

@@ -19,14 +19,15 @@ Steps, each timed (``est.info["timing"]``):
 4. *marginals*: pose and landmark covariances (conditional on the estimated bias), converted
    to the Estimate convention.
 
-On 0027 (ground truth, 2-core machine): aligned ATE 2.88 m, KITTI t_rel 1.55 % (5.06 m,
-2.30 % with a 6-sample gyro mean at the gaps instead of the smoothness prior; 6.65 m, 3.00 %
-with neither the bias nor any gap treatment); 0034 in about 18 s with marginals
-(benchmarks/smoother_timing.py).
+On 0027 (ground truth, 2-core machine, the file's model): aligned ATE 2.82 m, KITTI t_rel
+1.53 % (5.06 m, 2.30 % with a 6-sample gyro mean at the gaps instead of the smoothness prior;
+6.65 m, 3.00 % with neither the bias nor any gap treatment); 0034 in about 9 s with marginals,
+2 s of it the EKF that initialises it (benchmarks/smoother_timing.py).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -134,10 +135,13 @@ def _finite_dead_reckoning(seq: Sequence, config: FilterConfig) -> np.ndarray:
     return poses
 
 
-def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings) -> tuple[gtsam.Values, int, float, float]:
+def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings,
+                         relative_tol: float | None = None) -> tuple[gtsam.Values, int, float, float]:
+    """LM on ``problem`` to ``relative_tol`` (default ``settings.relative_error_tol``): the
+    solution, iterations, initial and final error."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(int(settings.max_iterations))
-    params.setRelativeErrorTol(settings.relative_error_tol)
+    params.setRelativeErrorTol(settings.relative_error_tol if relative_tol is None else relative_tol)
     params.setAbsoluteErrorTol(settings.absolute_error_tol)
     try:
         optimizer = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, params)
@@ -342,14 +346,18 @@ def _solve(
     iterations: list[int] = []
     errors: list[tuple[float, float]] = []
     n_outliers = 0
-    for round_ in range(int(settings.rejection_rounds) + 1):
+    # The rounds before the last only find the outliers: a looser stopping rule there.
+    rejection_tol = max(settings.relative_error_tol, settings.rejection_relative_error_tol)
+    last_round = int(settings.rejection_rounds)
+    for round_ in range(last_round + 1):
         tick = time.perf_counter()
-        values, n_iter, e0, e1 = _levenberg_marquardt(problem, settings)
+        values, n_iter, e0, e1 = _levenberg_marquardt(
+            problem, settings, settings.relative_error_tol if round_ == last_round else rejection_tol)
         iterations.append(n_iter)
         errors.append((e0, e1))
         timing["optimise_s"] += time.perf_counter() - tick
         log.info("smoother round %d: %d iterations, error %.4g -> %.4g", round_, n_iter, e0, e1)
-        if round_ == settings.rejection_rounds:
+        if round_ == last_round:
             break
         tick = time.perf_counter()
         poses = poses_from_values(values, T)
@@ -368,8 +376,11 @@ def _solve(
             b_hat = estimate_bias(poses, deltas, model.D, motion_covs, config.gyro_bias_sigma, b_hat)
             motion = corrected_deltas(deltas, model.D, b_hat)
         elif final_keep.all() and len(rows) == len(problem.rows):
+            # nothing to reject: the same graph, from here, to the final stopping rule
             timing["build_s"] += time.perf_counter() - tick
-            break
+            last_round = round_ + 1
+            problem = dataclasses.replace(problem, values=values)
+            continue
         n_outliers += int(np.sum(~final_keep))
         rejected += np.bincount(rows.frame[~final_keep], minlength=T)
         rows = rows.subset(final_keep)
