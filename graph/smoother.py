@@ -376,8 +376,10 @@ def _solve(
             b_hat = estimate_bias(poses, deltas, model.D, motion_covs, config.gyro_bias_sigma, b_hat)
             motion = corrected_deltas(deltas, model.D, b_hat)
         elif final_keep.all() and len(rows) == len(problem.rows):
-            # nothing to reject: the same graph, from here, to the final stopping rule
+            # nothing to reject: done, or the same graph continued to the final stopping rule
             timing["build_s"] += time.perf_counter() - tick
+            if rejection_tol <= settings.relative_error_tol:
+                break
             last_round = round_ + 1
             problem = dataclasses.replace(problem, values=values)
             continue

@@ -104,7 +104,7 @@ def test_rejection_rounds_stop_early_and_the_last_converges(noisy):
 def test_nothing_to_reject_still_ends_at_the_final_tolerance(noisy):
     """No bias to re-estimate and no outlier (threshold 1e6 px): the graph is not rebuilt, but
     the loosely solved first round is continued to ``relative_error_tol``, which a single round
-    reaches directly."""
+    reaches directly; with one tolerance for every round that first round is the answer."""
     config = CONFIG.replace(gyro_bias=False)
     settings = SmootherSettings(outlier_threshold_px=1e6)
     two = solve_smoother(noisy.sequence, config, settings, init="dead-reckoning")
@@ -114,6 +114,10 @@ def test_nothing_to_reject_still_ends_at_the_final_tolerance(noisy):
     assert two.iterations[0] < one.iterations[0]
     assert abs(two.errors[-1][1] - one.errors[-1][1]) <= 1e-4 * one.errors[-1][1]
     np.testing.assert_allclose(two.poses, one.poses, rtol=0, atol=2e-3)
+    # with the same tolerance in every round the first solve is already final (as before)
+    same = solve_smoother(noisy.sequence, config, settings.replace(rejection_relative_error_tol=1e-5),
+                          init="dead-reckoning")
+    assert same.iterations == one.iterations and np.array_equal(same.poses, one.poses)
 
 @pytest.mark.slow
 def test_noisy_smoother_beats_the_ekf(noisy):
