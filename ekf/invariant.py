@@ -72,6 +72,7 @@ from vislam.ekf.estimate import Estimate
 from vislam.ekf.numerics import (
     NumericalGuard,
     UpdateRejected,
+    add_pose_rows,
     all_finite,
     batched_inv,
     batched_solve,
@@ -593,9 +594,7 @@ def _transport_inverse_depth(st: _State, ids: np.ndarray, x_prior: np.ndarray, o
     C = np.zeros((st.lm_id.size, 3, 6))
     C[ids] = idp.gauge_rows(st.landmarks[ids], R_a, p_a) - idp.gauge_rows(x_prior, R_a, p_a)
     C = C.reshape(-1, 6)  # every landmark row (zero for group ones): contiguous slices
-    P = st.P
-    P[off:] += C @ P[:6]
-    P[:, off:] += P[:, :6] @ C.T
+    add_pose_rows(st.P, off, C)
     return C
 
 

@@ -55,6 +55,7 @@ import numpy as np
 
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import EstimationError, InputError
+from vislam.ekf.runner import COVARIANCE_RTOL
 from vislam.graph.settings import SmootherSettings
 
 log = logging.getLogger(__name__)
@@ -304,10 +305,10 @@ def check_contract(est, seq, name: str) -> None:
         _check_covariances(lcov, "landmark covariance of track", fail, rows)
 
 
-#: Relative tolerance of the covariance checks (of the largest entry): a filter's own rounding
-#: (the invariant EKF's landmark conversions reach 7e-8 on hostile drives) passes, a wrong
-#: entry or a negative variance does not.
-COVARIANCE_RTOL = 1e-6
+# COVARIANCE_RTOL (vislam.ekf.runner), the relative tolerance of the covariance checks (of the
+# largest entry): a filter's own rounding (the invariant EKF's landmark conversions reach 7e-8
+# on hostile drives) passes, a wrong entry or a negative variance does not. The EKFs drop a
+# landmark whose covariance fails it (vislam.ekf.runner.covariance_usable).
 
 
 def _check_covariances(cov: np.ndarray, what: str, fail, index=None) -> None:

@@ -246,3 +246,25 @@ def test_constrained_linearisation_removes_most_spurious_information(landmarks):
         assert mean["oc"] < 40, mean
     else:
         assert mean["oc"] < 6 * 1.5, mean
+
+
+@pytest.mark.parametrize("core", [6, 9])
+def test_add_pose_rows_is_the_transport_t_p_tt(core):
+    """``numerics.add_pose_rows`` (one in-place GEMM) equals ``T P T^T`` formed densely, for a
+    C-ordered covariance and for one BLAS cannot write into (Fortran-ordered)."""
+    from vislam.ekf.numerics import add_pose_rows
+
+    rng = np.random.default_rng(core)
+    N = core + 3 * 7
+    A = rng.standard_normal((N, N))
+    P0 = A @ A.T + N * np.eye(N)
+    C = rng.standard_normal((N - core, 6))
+    T = np.eye(N)
+    T[core:, :6] = C
+    want = T @ P0 @ T.T
+    for P in (P0.copy(), np.asfortranarray(P0)):
+        add_pose_rows(P, core, C)
+        np.testing.assert_allclose(P, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+    P = P0[:core, :core].copy()
+    add_pose_rows(P, core, np.zeros((0, 6)))  # no landmark rows: unchanged
+    np.testing.assert_array_equal(P, P0[:core, :core])

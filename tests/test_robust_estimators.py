@@ -522,3 +522,25 @@ def test_property_ekfs_on_corrupted_drives(seq):
 def test_property_smoothers_on_corrupted_drives(seq):
     for name in SMOOTHERS:
         run_checked(name, seq)
+
+
+def test_landmarks_with_unusable_covariances_leave_the_map(caplog):
+    """What an EKF reports passes the estimator contract: a landmark whose covariance rounding
+    has left indefinite (or asymmetric, or not finite) is dropped from the map, counted and
+    logged; one within the contract's tolerance (a rounding-level negative eigenvalue) stays."""
+    from vislam.ekf.numerics import NumericalGuard
+    from vislam.ekf.runner import COVARIANCE_RTOL, covariance_usable, finish_estimate
+
+    est = Estimate.empty("ekf-joint", np.arange(3) * 0.1, 5)
+    est.pose_cov[:] = np.eye(6)
+    est.landmarks[:4] = 1.0
+    est.landmark_cov[:4] = np.eye(3)
+    est.landmark_cov[1] = np.diag([1.0, 1.0, -0.5])  # indefinite
+    est.landmark_cov[2, 0, 1] = 1e-3  # asymmetric
+    est.landmark_cov[3] = np.diag([1.0, 1.0, -0.1 * COVARIANCE_RTOL])  # rounding: kept
+    assert covariance_usable(est.landmark_cov[:4]).tolist() == [True, False, False, True]
+    caplog.set_level(logging.WARNING)
+    out = finish_estimate(est, NumericalGuard("ekf-joint", est.timestamps))
+    assert out.has_landmark.tolist() == [True, False, False, True, False]
+    assert out.info["n_landmarks_dropped"] == 2
+    assert any("2 landmarks" in r.getMessage() for r in caplog.records)
