@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vislam.ekf.errors import EstimationError
+from vislam.ekf.errors import EstimationError, time_text
 
 _ARRAYS = (
     "timestamps",
@@ -123,7 +123,7 @@ class Estimate:
                 t = int(bad[0])
                 stamp = float(self.timestamps[t]) if t < np.size(self.timestamps) else float("nan")
                 raise EstimationError(
-                    f"{self.estimator}: frame {t} (t={stamp:.2f} s): {what} not finite"
+                    f"{self.estimator}: frame {t} (t={time_text(stamp)} s): {what} not finite"
                 )
         lm = np.asarray(self.landmarks, dtype=float)
         partial = np.flatnonzero(~self.has_landmark & ~np.isnan(lm).all(axis=1))

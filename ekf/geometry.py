@@ -99,7 +99,11 @@ def _theta_coeffs(theta: np.ndarray):
 
 
 def theta_coeffs_scalar(theta: float) -> tuple[float, float, float]:
-    """:func:`_theta_coeffs` for one angle, in plain floats (for single-vector hot loops)."""
+    """:func:`_theta_coeffs` for one angle, in plain floats (for single-vector hot loops);
+    NaN for an angle that is not finite (an overflowed twist: the caller's guard then names
+    the frame), where ``math.sin`` would raise."""
+    if not math.isfinite(theta):
+        return math.nan, math.nan, math.nan
     if theta < _SERIES:
         t2 = theta * theta
         out = []

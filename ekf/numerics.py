@@ -24,7 +24,7 @@ import math
 import numpy as np
 from scipy.linalg.blas import dgemm
 
-from vislam.ekf.errors import EstimationError
+from vislam.ekf.errors import EstimationError, time_text
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +52,7 @@ class NumericalGuard:
 
     def where(self, t: int) -> str:
         time = self.timestamps[t] if 0 <= t < self.timestamps.size else float("nan")
-        return f"frame {int(t)} (t={time:.2f} s)"
+        return f"frame {int(t)} (t={time_text(time)} s)"
 
     def reject(self, t: int, what: str, n_obs: int | None = None) -> None:
         """Record that (part of) frame ``t``'s update was rejected because of ``what``."""

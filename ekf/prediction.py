@@ -19,7 +19,7 @@ walk of density ``sigma_walk`` (variance ``sigma_walk^2 tau`` per step).
 Public building blocks (also used by ``ekf/invariant.py``):
 :func:`paired_velocities`, :func:`motion_increment`, :func:`predict_mean`,
 :func:`prediction_jacobian`, :func:`process_noise`, :func:`predict_pose`,
-:func:`se3_left_jacobian`, :func:`bias_jacobian`, :func:`se3_exp_single`,
+:func:`se3_left_jacobian` (closed form), :func:`bias_jacobian`, :func:`se3_exp_single`,
 :func:`so3_exp_and_left_jacobian`.
 """
 
@@ -106,12 +106,62 @@ def predict_pose(
     return predict_mean(U, tau, u), 0.5 * (Sigma + Sigma.T)
 
 
-def se3_left_jacobian(xi: np.ndarray, terms: int = 20) -> np.ndarray:
-    """Left Jacobian of SE(3) (6x6, translation first): ``sum_k curly_hat(xi)^k / (k+1)!``.
+#: Below this angle the coefficients of :func:`se3_left_jacobian`'s ``Q`` come from Taylor
+#: series (their closed forms cancel catastrophically).
+_Q_SERIES = 0.1
 
-    ``exp((xi + e)^) ~ exp((J_l(xi) e)^) exp(xi^)`` to first order in ``e``. Evaluated by a
-    Horner scheme; 20 terms are exact to ~1e-12 for ``|xi| <= 2.5`` (25 m/s over 0.1 s).
-    """
+
+def _q_coefficients(theta: float) -> tuple[float, float, float]:
+    """``c1 = (t - sin t) / t^3``, ``c2 = (t^2/2 + cos t - 1) / t^4`` and
+    ``c3 = (2t - 3 sin t + t cos t) / (2 t^5)`` (Barfoot 2017, eq. 7.86); Taylor series below
+    ``_Q_SERIES`` (next terms under 1e-16 there); NaN for an angle that is not finite."""
+    if not math.isfinite(theta):
+        return math.nan, math.nan, math.nan
+    if theta < _Q_SERIES:
+        t2 = theta * theta
+        return (1 / 6 - t2 / 120 + t2 * t2 / 5040 - t2 ** 3 / 362880,
+                1 / 24 - t2 / 720 + t2 * t2 / 40320 - t2 ** 3 / 3628800,
+                1 / 120 - t2 / 2520 + t2 * t2 / 120960 - t2 ** 3 / 7983360)
+    s, c = math.sin(theta), math.cos(theta)
+    t2 = theta * theta
+    return ((theta - s) / (t2 * theta), (0.5 * t2 + c - 1.0) / (t2 * t2),
+            (2.0 * theta - 3.0 * s + theta * c) / (2.0 * t2 * t2 * theta))
+
+
+def se3_left_jacobian(xi: np.ndarray) -> np.ndarray:
+    """Left Jacobian of SE(3) (6x6, translation first), ``sum_k curly_hat(xi)^k / (k+1)!``:
+    ``exp((xi + e)^) ~ exp((J_l(xi) e)^) exp(xi^)`` to first order in ``e``.
+
+    Closed form (Barfoot 2017, eq. 7.85-7.86), ``xi = [rho; phi]``, ``t = |phi|``,
+    ``P = phi^``, ``X = rho^``: ``J_l = [[J, Q], [0, J]]`` with ``J`` the SO(3) left Jacobian and
+    ``Q = X/2 + c1 (P X + X P + P X P) + c2 (P P X + X P P - 3 P X P)
+    + c3 (P X P P + P P X P)`` (coefficients :func:`_q_coefficients`). A single twist (6,) or a
+    batch (..., 6) (:func:`se3_left_jacobian_series` is the series itself, the reference in
+    tests)."""
+    xi = np.asarray(xi, dtype=float)
+    if xi.shape != (6,):
+        return np.stack([se3_left_jacobian(x) for x in xi.reshape(-1, 6)]).reshape(xi.shape[:-1] + (6, 6))
+    p1, p2, p3 = float(xi[3]), float(xi[4]), float(xi[5])
+    theta = math.sqrt(p1 * p1 + p2 * p2 + p3 * p3)
+    _, J = so3_exp_and_left_jacobian(xi[3:])
+    c1, c2, c3 = _q_coefficients(theta)
+    P = np.array([[0.0, -p3, p2], [p3, 0.0, -p1], [-p2, p1, 0.0]])
+    r1, r2, r3 = float(xi[0]), float(xi[1]), float(xi[2])
+    X = np.array([[0.0, -r3, r2], [r3, 0.0, -r1], [-r2, r1, 0.0]])
+    PX, XP = P @ X, X @ P
+    PXP = PX @ P
+    PPX = P @ PX
+    Q = 0.5 * X + c1 * (PX + XP + PXP) + c2 * (PPX + XP @ P - 3.0 * PXP) + c3 * (PXP @ P + P @ PXP)
+    out = np.zeros((6, 6))
+    out[:3, :3] = J
+    out[3:, 3:] = J
+    out[:3, 3:] = Q
+    return out
+
+
+def se3_left_jacobian_series(xi: np.ndarray, terms: int = 20) -> np.ndarray:
+    """:func:`se3_left_jacobian` as its series, ``sum_k curly_hat(xi)^k / (k+1)!`` by a Horner
+    scheme (20 terms: exact to ~1e-12 for ``|xi| <= 2.5``); batched."""
     A = curly_hat(np.asarray(xi, dtype=float))
     I = np.broadcast_to(np.eye(6), A.shape)
     J = I.copy()

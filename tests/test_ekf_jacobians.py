@@ -293,3 +293,23 @@ def test_gauge_transport_maps_prior_nullspace_to_posterior(core, with_landmarks)
     else:
         N1[core:] = N0[core:]
         assert np.allclose(P, N1 @ N1.T, atol=1e-7 * np.abs(P).max())
+
+
+@pytest.mark.parametrize("rotation", [0.0, 1e-7, 1e-3, 0.0999, 0.1001, 0.5, 2.5])
+def test_se3_left_jacobian_closed_form_is_the_series(rotation):
+    """Barfoot's closed form of the SE(3) left Jacobian equals its defining series (40 terms)
+    on both sides of the Taylor threshold of its coefficients, and finite differences of
+    ``exp((xi + e)^) exp(xi^)^-1`` where the angle is large enough for them."""
+    from vislam.ekf.prediction import se3_left_jacobian_series
+
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        axis = rng.normal(size=3)
+        xi = np.concatenate([rng.normal(scale=2.0, size=3), rotation * axis / np.linalg.norm(axis)])
+        J = se3_left_jacobian(xi)
+        np.testing.assert_allclose(J, se3_left_jacobian_series(xi, 40), rtol=0, atol=1e-13)
+    if rotation >= 1e-3:
+        f = lambda e: se3_log(se3_exp(xi + e) @ se3_inv(se3_exp(xi)))  # noqa: E731
+        np.testing.assert_allclose(J, numeric_jacobian(f, np.zeros(6)), atol=1e-7)
+    batch = np.stack([xi, -xi])
+    np.testing.assert_allclose(se3_left_jacobian(batch)[1], se3_left_jacobian(-xi), rtol=0, atol=0)
