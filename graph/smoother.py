@@ -21,8 +21,8 @@ Steps, each timed (``est.info["timing"]``):
 
 On 0027 (ground truth, 2-core machine, the file's model): aligned ATE 2.82 m, KITTI t_rel
 1.53 % (5.06 m, 2.30 % with a 6-sample gyro mean at the gaps instead of the smoothness prior;
-6.65 m, 3.00 % with neither the bias nor any gap treatment); 0034 in about 9 s with marginals,
-2 s of it the EKF that initialises it (benchmarks/smoother_timing.py).
+6.65 m, 3.00 % with neither the bias nor any gap treatment); 0034 in about 5.7 s with marginals
+given the EKF's estimate, as bench gives it (the EKF itself 1.7 s; benchmarks/smoother_timing.py).
 """
 
 from __future__ import annotations
