@@ -380,8 +380,8 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     if seq.n_frames < 3:
         raise EstimationError("calibrate: needs at least 3 frames")
     # Every round to the same tolerance: the bias and pairing decisions compare likelihoods
-    # of nearby solves, and a looser rejection round moved them (with the smoother's 1e-3 the
-    # 2019 edition's bias likelihood ratio went from below BIC's 21.02 to 21.9).
+    # of nearby solves, and a looser rejection round moved them (one stopped at 1e-3 took the
+    # 2019 edition's bias likelihood ratio from below BIC's 21.02 to 21.9).
     em_tol = max(settings.relative_error_tol, EM_RELATIVE_ERROR_TOL)
     with_bias = settings.replace(gyro_bias="alternate", relative_error_tol=em_tol,
                                  rejection_relative_error_tol=em_tol)
