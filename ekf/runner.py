@@ -191,8 +191,9 @@ def finish_estimate(est: Estimate, guard: NumericalGuard, check_cov: bool = True
     the estimator's EstimationError if a pose or pose covariance is not finite (naming the first
     such frame), and drop landmarks whose mean is not finite or whose covariance is not finite
     or not usable (:func:`covariance_usable`; logged, counted in ``info["n_landmarks_dropped"]``)
-    so that the estimate passes :meth:`Estimate.check_finite` and the estimator contract. ``check_cov=False``: the pose covariances were not computed
-    (NaN by design), only the poses are checked."""
+    so that the estimate passes :meth:`Estimate.check_finite` and the estimator contract.
+    ``check_cov=False``: the pose covariances were not computed (NaN by design), only the
+    poses are checked."""
     est.info.update(guard.info())
     check_finite_trajectory(guard, est.poses, est.pose_cov if check_cov else np.zeros((est.n_frames, 1)))
     lm, cov = est.landmarks, est.landmark_cov
