@@ -149,8 +149,9 @@ def all_finite(*arrays: np.ndarray) -> bool:
 
 
 def add_pose_rows(P: np.ndarray, core: int, C: np.ndarray) -> None:
-    """``P <- T P T^T`` in place, ``T = [[I, 0], [C_z, I]]``: ``C`` (m, 6) adds the first six
-    (pose) rows to the last ``m = P.shape[0] - core`` rows (the landmarks' gauge transports).
+    """``P <- T P T^T`` in place for a symmetric ``P`` (its columns stand in for its rows
+    below), ``T = [[I, 0], [C_z, I]]``: ``C`` (m, 6) adds the first six (pose) rows to the last
+    ``m = P.shape[0] - core`` rows (the landmarks' gauge transports).
 
     ``T P T^T = P + C_z W^T + V C_z^T`` with ``W = P[:, :6]``, ``C_z`` the rows of ``C`` at
     ``core:`` and ``V = W + C_z P_pp`` (the new pose columns): one GEMM of inner size 12 over

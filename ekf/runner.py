@@ -186,14 +186,17 @@ def build_estimate(
     return est
 
 
-def finish_estimate(est: Estimate, guard: NumericalGuard, check_cov: bool = True) -> Estimate:
+def finish_estimate(est: Estimate, guard: NumericalGuard, check_cov: bool = True,
+                    drop_unusable_cov: bool = True) -> Estimate:
     """What every estimator does last: record the numerical rejections in ``est.info``, raise
     the estimator's EstimationError if a pose or pose covariance is not finite (naming the first
     such frame), and drop landmarks whose mean is not finite or whose covariance is not finite
     or not usable (:func:`covariance_usable`; logged, counted in ``info["n_landmarks_dropped"]``)
     so that the estimate passes :meth:`Estimate.check_finite` and the estimator contract.
     ``check_cov=False``: the pose covariances were not computed (NaN by design), only the
-    poses are checked."""
+    poses are checked. ``drop_unusable_cov=False`` (the smoothers, whose marginals come from one
+    factorisation and are never left indefinite by rounding): only non-finite landmarks are
+    dropped, so that a fault in the marginals still fails the estimator contract."""
     est.info.update(guard.info())
     check_finite_trajectory(guard, est.poses, est.pose_cov if check_cov else np.zeros((est.n_frames, 1)))
     lm, cov = est.landmarks, est.landmark_cov
@@ -201,7 +204,8 @@ def finish_estimate(est: Estimate, guard: NumericalGuard, check_cov: bool = True
         ok = np.isfinite(lm).all(axis=1)
         if check_cov:
             ok &= np.isfinite(cov.reshape(cov.shape[0], -1)).all(axis=1)
-            ok[ok] = covariance_usable(cov[ok])
+            if drop_unusable_cov:
+                ok[ok] = covariance_usable(cov[ok])
         bad = ~ok & ~np.isnan(lm).all(axis=1)
         if bad.any():
             log.warning("%s: %d landmarks with a non-finite mean or a covariance not finite, not "

@@ -75,12 +75,19 @@ def sequence_digest(seq: Sequence) -> str:
     return h.hexdigest()
 
 
+#: Smoother settings identification overrides (it solves every round to its EM tolerance), so
+#: they do not make another model: left out of the key (cached models stay valid).
+IGNORED_SETTINGS = ("rejection_relative_error_tol",)
+
+
 def cache_key(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
               pairings: tuple[str, ...]) -> str:
-    """The entry of ``seq`` identified from ``config`` with the smoother's ``settings``."""
+    """The entry of ``seq`` identified from ``config`` with the smoother's ``settings`` (less
+    the ones identification does not read: :data:`IGNORED_SETTINGS`)."""
+    smoother = {k: v for k, v in settings.to_dict().items() if k not in IGNORED_SETTINGS}
     h = hashlib.sha256()
     h.update(sequence_digest(seq).encode())
-    h.update(json.dumps({"config": config.to_dict(), "smoother": settings.to_dict(),
+    h.update(json.dumps({"config": config.to_dict(), "smoother": smoother,
                          "pairings": list(pairings), "version": IDENTIFICATION_VERSION},
                         sort_keys=True, default=str).encode())
     return h.hexdigest()[:32]

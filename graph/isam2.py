@@ -379,4 +379,5 @@ def _run_isam2(
     if lag is not None:
         est.info["fixed_lag_s"] = float(lag)
     return finish_estimate(est, NumericalGuard(name, cleaned.timestamps),
-                           check_cov=bool(settings.compute_marginals) or lag is not None)
+                           check_cov=bool(settings.compute_marginals) or lag is not None,
+                           drop_unusable_cov=False)

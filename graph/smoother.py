@@ -459,4 +459,5 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
         "marginals_computed": bool(settings.compute_marginals),
     }
     return finish_estimate(est, NumericalGuard("smoother", cleaned.timestamps),
-                           check_cov=bool(settings.compute_marginals))
+                           check_cov=bool(settings.compute_marginals),
+                           drop_unusable_cov=False)

@@ -316,3 +316,18 @@ def test_progress_names_the_jobs_running_not_the_one_finished():
         f.set_running_or_notify_cancel()
     assert benchmark._running(labels, set(futs)) == "running ekf-joint on 0027, ekf-joint on 0034 and 2 more"
     assert benchmark._running(labels, set()) == "finishing"
+
+
+def test_model_cache_key_ignores_what_identification_overrides():
+    """Identification solves every smoother round to its EM tolerance, so the smoother's
+    rejection-round tolerance does not make another model: same key (and models cached before
+    that setting existed stay valid); a setting it does read changes the key."""
+    from vislam.eval.model_cache import cache_key
+    from vislam.eval.simulate import SimConfig, simulate
+    from vislam.graph.settings import SmootherSettings
+
+    seq = simulate(SimConfig(seed=1, n_frames=20)).sequence
+    base = cache_key(seq, FilterConfig(), SmootherSettings(), ("mean",))
+    assert cache_key(seq, FilterConfig(), SmootherSettings(rejection_relative_error_tol=0.5),
+                     ("mean",)) == base
+    assert cache_key(seq, FilterConfig(), SmootherSettings(huber_k=2.0), ("mean",)) != base

@@ -312,4 +312,29 @@ def test_se3_left_jacobian_closed_form_is_the_series(rotation):
         f = lambda e: se3_log(se3_exp(xi + e) @ se3_inv(se3_exp(xi)))  # noqa: E731
         np.testing.assert_allclose(J, numeric_jacobian(f, np.zeros(6)), atol=1e-7)
     batch = np.stack([xi, -xi])
-    np.testing.assert_allclose(se3_left_jacobian(batch)[1], se3_left_jacobian(-xi), rtol=0, atol=0)
+    np.testing.assert_allclose(se3_left_jacobian(batch), se3_left_jacobian_series(batch, 40),
+                               rtol=0, atol=1e-13)
+    assert se3_left_jacobian(np.zeros((0, 6))).shape == (0, 6, 6)
+
+
+def test_q_coefficients_are_their_exact_series():
+    """The three coefficients of the SE(3) left Jacobian's ``Q`` against their Taylor series
+    in exact rational arithmetic (12 terms): the series branch below 0.1 rad to 5e-15 relative
+    (a wrong t^6 coefficient of c3 was 3e-12 off at 0.1); the closed forms above it to 1e-9,
+    their cancellation just above the threshold (3e-11 at 0.1001: about 1e-14 of J)."""
+    from fractions import Fraction
+    from math import factorial
+
+    from vislam.ekf.prediction import _q_coefficients
+
+    def exact(theta: float) -> list[float]:
+        t = Fraction(theta)
+        c1 = sum(Fraction((-1) ** n, factorial(2 * n + 3)) * t ** (2 * n) for n in range(12))
+        c2 = sum(Fraction((-1) ** n, factorial(2 * n + 4)) * t ** (2 * n) for n in range(12))
+        # (2t - 3 sin t + t cos t) / (2 t^5): coefficient of t^(2n+1) is (-1)^n (1/(2n)! - 3/(2n+1)!)
+        c3 = sum(Fraction((-1) ** n, factorial(2 * n)) * (1 - Fraction(3, 2 * n + 1)) / 2
+                 * t ** (2 * n - 4) for n in range(2, 14))
+        return [float(c1), float(c2), float(c3)]
+
+    for theta in (0.0, 1e-4, 0.05, 0.0999, 0.1001, 0.3, 1.0):
+        np.testing.assert_allclose(_q_coefficients(theta), exact(theta), rtol=5e-15 if theta < 0.1 else 1e-9)

@@ -551,3 +551,9 @@ def test_landmarks_with_unusable_covariances_leave_the_map(caplog):
     assert out.has_landmark.tolist() == [True, False, False, True, False]
     assert out.info["n_landmarks_dropped"] == 2
     assert any("2 landmarks" in r.getMessage() for r in caplog.records)
+    # The smoothers keep them (drop_unusable_cov=False): a fault in their marginals must still
+    # fail the estimator contract, not thin the map quietly.
+    est.landmark_cov[1] = np.diag([1.0, 1.0, -0.5])
+    est.landmarks[1] = 1.0
+    kept = finish_estimate(est, NumericalGuard("smoother", est.timestamps), drop_unusable_cov=False)
+    assert kept.has_landmark[1] and kept.info["n_landmarks_dropped"] == 0
