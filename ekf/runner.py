@@ -224,14 +224,23 @@ def finish_estimate(est: Estimate, guard: NumericalGuard, check_cov: bool = True
 COVARIANCE_RTOL = 1e-6
 
 
+def covariance_defects(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For finite covariances (n, d, d), relative to each one's largest entry: the largest
+    asymmetry (n,) and the smallest eigenvalue of the symmetric part (n,). What
+    :func:`covariance_usable` and the estimator contract (``eval.registry``) test against
+    :data:`COVARIANCE_RTOL`."""
+    if cov.shape[0] == 0:
+        return np.zeros(0), np.zeros(0)
+    scale = np.maximum(np.abs(cov).max(axis=(1, 2)), 1e-300)
+    asym = np.abs(cov - np.swapaxes(cov, 1, 2)).max(axis=(1, 2)) / scale
+    low = np.linalg.eigvalsh((cov + np.swapaxes(cov, 1, 2)) / 2)[:, 0] / scale
+    return asym, low
+
+
 def covariance_usable(cov: np.ndarray) -> np.ndarray:
     """Boolean (n,) for finite covariances (n, d, d): symmetric and positive semi-definite
     within :data:`COVARIANCE_RTOL` of the largest entry. On hostile input (pixels 1e5 px off)
     an EKF's gauge transport can cancel a huge correlation into a landmark block that rounding
     has left indefinite; such a landmark is dropped from the map, not reported."""
-    if cov.shape[0] == 0:
-        return np.zeros(0, dtype=bool)
-    scale = np.maximum(np.abs(cov).max(axis=(1, 2)), 1e-300)
-    asym = np.abs(cov - np.swapaxes(cov, 1, 2)).max(axis=(1, 2)) / scale
-    low = np.linalg.eigvalsh((cov + np.swapaxes(cov, 1, 2)) / 2)[:, 0] / scale
+    asym, low = covariance_defects(cov)
     return (asym <= COVARIANCE_RTOL) & (low >= -COVARIANCE_RTOL)

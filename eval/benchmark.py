@@ -504,8 +504,8 @@ def sequence_figures(folder: Path, bs: BenchSequence, ests: dict[str, Estimate])
     written.append(plots.plot_trajectories(folder / "trajectories.png", ests, gt_pos,
                                            f"{title}: trajectories, top view"))
     map_from = next(
-        (n for n in ("smoother", "smoother-isam2", "smoother-fixed-lag", "ekf-invariant", "ekf-joint",
-                     "ekf-decoupled", "mapping") if n in ests and np.any(ests[n].has_landmark)),
+        (n for n in (*SMOOTHERS, *SMOOTHER_INITIAL_FROM, "ekf-decoupled", "mapping")
+         if n in ests and np.any(ests[n].has_landmark)),
         None,
     )
     if map_from is not None:

@@ -55,7 +55,7 @@ import numpy as np
 
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import EstimationError, InputError
-from vislam.ekf.runner import COVARIANCE_RTOL
+from vislam.ekf.runner import COVARIANCE_RTOL, covariance_defects
 from vislam.graph.settings import SmootherSettings
 
 log = logging.getLogger(__name__)
@@ -312,13 +312,11 @@ def check_contract(est, seq, name: str) -> None:
 
 
 def _check_covariances(cov: np.ndarray, what: str, fail, index=None) -> None:
-    scale = np.maximum(np.abs(cov).max(axis=(1, 2)), 1e-300)
-    asym = np.abs(cov - np.swapaxes(cov, 1, 2)).max(axis=(1, 2)) / scale
+    asym, low = covariance_defects(cov)
     bad = np.flatnonzero(asym > COVARIANCE_RTOL)
     if bad.size:
         k = int(bad[0] if index is None else index[bad[0]])
         fail(f"a {what} {k} that is not symmetric (relative asymmetry {asym[bad[0]]:.1e})")
-    low = np.linalg.eigvalsh((cov + np.swapaxes(cov, 1, 2)) / 2)[:, 0] / scale
     bad = np.flatnonzero(low < -COVARIANCE_RTOL)
     if bad.size:
         k = int(bad[0] if index is None else index[bad[0]])

@@ -218,7 +218,7 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
             poses[k] = isam.calculateEstimatePose3(X(k)).matrix()
             if window is not None:  # what leaves at the next update: as it is now
                 t_next = times[k + 1] - lag if k + 1 < T else np.inf
-                window.leave(isam, poses, landmark_est, times, in_graph, t_next, k)
+                window.leave(isam, poses, times, in_graph, t_next, k)
         except RuntimeError as exc:
             raise estimation_error(exc, f"adding frame {k} to the incremental smoother",
                                    estimator=name) from None
@@ -274,7 +274,7 @@ class _Window:
         self.last_seen = np.full(n_tracks, np.inf)  # time of the last observation in the graph
         self.gone = np.zeros(n_tracks, dtype=bool)
 
-    def leave(self, smoother, poses, landmark_est, times, in_graph, before: float, k: int) -> None:
+    def leave(self, smoother, poses, times, in_graph, before: float, k: int) -> None:
         """Record the poses (up to frame ``k``) and landmarks whose time is before ``before``:
         GTSAM marginalises them at the next update."""
         while self.first_pose <= k and times[self.first_pose] < before:
