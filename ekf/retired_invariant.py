@@ -111,10 +111,8 @@ class InvariantRetired(RetiredLandmarks):
     def world(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World means and covariances: a group landmark's ``dl = xi_l - l^ xi_R`` from the
         joint covariance of ``[xi_R, x_j]``; an inverse-depth one first order (ID-6)."""
-        Fb = _blocks(self.F)
-        FP = Fb @ P
-        cov_x = np.einsum("nim,njm->nij", FP, Fb) + self.E
-        cross = FP[:, :, R_COLS]  # cov(x_j, xi_R)
+        cov_x = self.covariances(P)  # RL-1
+        cross = _blocks(self.F) @ P[:, R_COLS]  # cov(x_j, xi_R)
         mean, cov = self.mean.copy(), cov_x.copy()
         g = np.flatnonzero(~self.inverse)
         if g.size:
