@@ -221,6 +221,22 @@ def rpe_pairs(n: int, delta: int, all_pairs: bool = False) -> tuple[np.ndarray, 
     return ids[:-1], ids[1:]
 
 
+def relative_errors(est: np.ndarray, gt: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` (n, 4, 4) for index pairs (i, j): the error of the
+    estimated motion from i to j, Q the truth and P the estimate (module docstring, RPE)."""
+    return se3_inv(se3_inv(gt[i]) @ gt[j]) @ (se3_inv(est[i]) @ est[j])
+
+
+def interval_errors(est_poses, gt_poses) -> np.ndarray:
+    """The error of each estimated interval motion ``[k, k+1]`` as a twist (T-1, 6),
+    translation first: ``se3_log`` of :func:`relative_errors` of consecutive poses. Its mean
+    over many intervals is the systematic part of the drift (it adds up coherently), its
+    spread the random part."""
+    est, gt = _pair(est_poses, gt_poses)
+    i = np.arange(max(est.shape[0] - 1, 0))
+    return se3_log(relative_errors(est, gt, i, i + 1))
+
+
 def rpe(est_poses, gt_poses, delta: int = 1, all_pairs: bool = False) -> dict:
     """Relative pose error over ``delta`` frames (evo's definition; see the module docstring).
 
@@ -232,9 +248,7 @@ def rpe(est_poses, gt_poses, delta: int = 1, all_pairs: bool = False) -> dict:
     if i.size == 0:
         return dict(trans_rmse_m=None, trans_mean_m=None, rot_rmse_deg=None, rot_mean_deg=None,
                     n_pairs=0)
-    rel_gt = se3_inv(gt[i]) @ gt[j]
-    rel_est = se3_inv(est[i]) @ est[j]
-    E = se3_inv(rel_gt) @ rel_est
+    E = relative_errors(est, gt, i, j)
     t_err = np.linalg.norm(E[:, :3, 3], axis=1)
     r_err = np.degrees(rotation_angle(E[:, :3, :3]))
     return dict(

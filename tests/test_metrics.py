@@ -12,6 +12,7 @@ from vislam.ekf.geometry import se3_exp, so3_exp
 from vislam.eval.metrics import (
     align_trajectory,
     ate_rmse,
+    interval_errors,
     kitti_drift,
     nees_points,
     nees_pose,
@@ -101,6 +102,20 @@ def test_rpe_is_invariant_to_a_global_transform(pair):
     est, gt, offset = pair
     a, b = rpe(est, gt, delta=5), rpe(offset @ est, gt, delta=5)
     assert a["trans_rmse_m"] == pytest.approx(b["trans_rmse_m"], rel=1e-9)
+
+
+def test_interval_errors_recover_a_known_error_per_interval():
+    """Each estimated step is the true one times exp(e_k): the interval errors are e_k (the
+    inverse of the true step cancels), whatever the drive and the global frame."""
+    rng = np.random.default_rng(11)
+    gt = _random_drive(rng, n=60)
+    e = rng.normal(0, 1e-3, (59, 6)) + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 5e-4])
+    est = np.empty_like(gt)
+    est[0] = se3_exp(np.array([1.0, 2.0, 3.0, 0.1, -0.2, 0.3]))
+    for k in range(59):
+        est[k + 1] = est[k] @ (np.linalg.inv(gt[k]) @ gt[k + 1]) @ se3_exp(e[k])
+    np.testing.assert_allclose(interval_errors(est, gt), e, atol=1e-12)
+    assert interval_errors(est[:1], gt[:1]).shape == (0, 6)
 
 
 def test_umeyama_recovers_a_known_transform_exactly():
