@@ -109,7 +109,9 @@ def main(argv=None) -> int:
     settings = SmootherSettings()
     for item in args.set:
         key, _, text = item.partition("=")
-        settings = settings.replace(**{key: type(getattr(settings, key))(text)})
+        kind = type(getattr(settings, key))
+        settings = settings.replace(**{key: text.lower() in ("1", "true", "yes") if kind is bool
+                                       else kind(text)})
     (bs,) = identify_models([load_bench_sequence(args.path)], FilterConfig(), SmootherSettings())
     if bs.gt is None:
         raise SystemExit(f"{args.path}: no ground truth beside it (groundtruth/NAME.txt)")
