@@ -379,7 +379,6 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConf
     if st.bias is not None:
         u[3:] -= st.bias
     twist = tau * u
-    T_start = st.T
     if st.lm_id.any():
         ok = _propagate_groups(st, twist, tau, W_chol, config, off)
         st.T = st.T @ se3_exp_single(twist)
@@ -399,14 +398,15 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConf
     if not finite_norm2(BL):
         return False
     P += BL @ BL.T
-    _predict_retired(st, T_start, twist, tau, W_chol, config, BL, F)
+    _predict_retired(st, twist, tau, W_chol, config, BL, F)
     st.T = st.T @ se3_exp_single(twist)
     return True
 
 
-def _predict_retired(st: _State, T_start, twist, tau, W_chol, config, BL, F) -> None:
+def _predict_retired(st: _State, twist, tau, W_chol, config, BL, F) -> None:
     """The retired landmarks' share of a prediction (RI-1): ``BL`` (dim A, 6) the twist noise
-    rows of the active state, ``F`` (dim A, 3) its bias coupling (None without a bias)."""
+    rows of the active state, ``F`` (dim A, 3) its bias coupling (None without a bias); called
+    before ``st.T`` moves (the retired rows take the pose at the start of the step)."""
     if st.retired is None or not st.retired.n:
         return
     N_A = BL
@@ -414,7 +414,7 @@ def _predict_retired(st: _State, T_start, twist, tau, W_chol, config, BL, F) -> 
         walk = np.zeros((BL.shape[0], 3))
         walk[B_IDX] = np.sqrt(config.gyro_bias_walk**2 * tau) * np.eye(3)
         N_A = np.concatenate([BL, walk], axis=1)
-    st.retired.predict(T_start, twist, tau, W_chol, N_A, F, st.P)
+    st.retired.predict(st.T, twist, tau, W_chol, N_A, F, st.P)
 
 
 def _propagate_groups(st: _State, twist, tau: float, W_chol, config: FilterConfig, off: int) -> bool:
@@ -446,7 +446,7 @@ def _propagate_groups(st: _State, twist, tau: float, W_chol, config: FilterConfi
         if F is not None:
             F_all = np.zeros((P.shape[0], 3))
             F_all[g] = F
-        _predict_retired(st, st.T, twist, tau, W_chol, config, BL_all, F_all)
+        _predict_retired(st, twist, tau, W_chol, config, BL_all, F_all)
     return True
 
 

@@ -106,6 +106,11 @@ def _add_gap_prior(graph: gtsam.NonlinearFactorGraph, isam, poses: np.ndarray, k
     return 1
 
 
+def _estimator_name(lag: float | None) -> str:
+    """``smoother-isam2``, or ``smoother-fixed-lag`` with a window ``lag``."""
+    return "smoother-isam2" if lag is None else "smoother-fixed-lag"
+
+
 def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
                 progress: Callable | None = None, lag: float | None = None) -> Isam2Result:
     """Run iSAM2 over an already cleaned sequence; with ``lag`` (seconds) the fixed-lag
@@ -132,7 +137,7 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     isam = gtsam.ISAM2(params) if lag is None else gtsam.IncrementalFixedLagSmoother(lag, params)
     times = seq.timestamps - seq.timestamps[0]
     window = _Window(T, M) if lag is not None else None
-    name = "smoother-isam2" if window is None else "smoother-fixed-lag"
+    name = _estimator_name(lag)
 
     pending: dict[int, int] = {}  # track -> row index of its first usable observation
     dropped = np.zeros(M, dtype=bool)
@@ -332,7 +337,8 @@ def _run_isam2(
     lag: float | None = None,
 ) -> Estimate:
     start = time.perf_counter()
-    name = "smoother-isam2" if lag is None else "smoother-fixed-lag"
+    name = _estimator_name(lag)
+    with_cov = bool(settings.compute_marginals) or lag is not None  # fixed lag: always
     cleaned, cleaning = prepare_sequence(seq, config)
     T, M = cleaned.n_frames, cleaned.n_tracks
     factorization = settings.isam2_factorization
@@ -373,11 +379,11 @@ def _run_isam2(
         "cleaning": cleaning,
         "settings": settings.to_dict(),
         "config": config.to_dict(),
-        "marginals_computed": bool(settings.compute_marginals) or lag is not None,
+        "marginals_computed": with_cov,
         "factorization": factorization,
     }
     if lag is not None:
         est.info["fixed_lag_s"] = float(lag)
     return finish_estimate(est, NumericalGuard(name, cleaned.timestamps),
-                           check_cov=bool(settings.compute_marginals) or lag is not None,
+                           check_cov=with_cov,
                            drop_unusable_cov=False)
