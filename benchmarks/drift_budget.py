@@ -12,7 +12,9 @@ identifies (cached), per estimator:
   into intervals no track spans (the repeat events' gaps, where only the velocity and, in the
   smoother, the twist-smoothness prior bridge) and intervals vision spans: their mean (the
   systematic part: it adds up coherently, shown summed over the intervals in degrees) and rms
-  (the random part);
+  (the random part), and how much too large the estimated turns are (a turn-scale error:
+  the rotation error along the true rotation per unit of rotation, :func:`eval.metrics.
+  turn_scale_error`; it adds up with the drive's net turn, printed in the header);
 * the velocity and gyro errors of the data against the ground truth's interval twists, under
   the model's pairing: their spread beside the model's interval sigma, lag-1 and lag-2
   autocorrelation, and the long-run variance over that of one interval (sums of 16 intervals;
@@ -34,7 +36,7 @@ from vislam.ekf.geometry import se3_inv, se3_log
 from vislam.eval.benchmark import identify_models, load_bench_sequence
 from vislam.eval.consistency import pose_nees
 from vislam.eval.datasets import drive_path
-from vislam.eval.metrics import interval_errors, pose_errors
+from vislam.eval.metrics import interval_errors, pose_errors, turn_scale_error
 from vislam.eval.registry import get_estimator
 from vislam.graph.factors import interval_twists, unconstrained_intervals, usable_rows
 from vislam.graph.settings import SmootherSettings
@@ -60,15 +62,18 @@ def drift_lines(name, est, gt, gaps: np.ndarray) -> list[str]:
            f"rotation error {np.round(rot_err, 2).tolist()} deg, sigma {np.round(rot_sd, 2).tolist()} deg"]
     consecutive = np.flatnonzero(np.diff(frames) == 1)  # intervals [k, k+1] with truth at both
     e = interval_errors(est.poses[frames], gt.poses)[consecutive]
+    true = se3_log(se3_inv(gt.poses[consecutive]) @ gt.poses[consecutive + 1])
     gap = gaps[frames[consecutive]]
     for label, sel in (("gaps", gap), ("vision", ~gap)):
         if not sel.any():
             continue
         rot, trans = e[sel, 3:], e[sel, :3]
+        k, k_sd = turn_scale_error(e[sel], true[sel])
         out.append(
             f"  {label:6s} {int(sel.sum()):5d} intervals: rotation mean {np.round(1e3 * rot.mean(0), 3).tolist()} "
             f"rms {np.round(1e3 * np.sqrt((rot ** 2).mean(0)), 2).tolist()} mrad, summed mean "
-            f"{np.round(np.degrees(rot.sum(0)), 2).tolist()} deg; translation rms "
+            f"{np.round(np.degrees(rot.sum(0)), 2).tolist()} deg; turns {100 * k:+.2f} % "
+            f"(+-{100 * k_sd:.2f}) too large; translation rms "
             f"{np.round(1e2 * np.sqrt((trans ** 2).mean(0)), 2).tolist()} cm")
     return out
 
@@ -119,8 +124,10 @@ def main(argv=None) -> int:
     cleaned, _ = clean_sequence(bs.sequence, min_disparity=config.min_disparity)
     rows, _ = usable_rows(cleaned, config.min_disparity)
     gaps = unconstrained_intervals(rows, cleaned.n_frames)
+    net_turn = np.degrees(np.sum(se3_log(se3_inv(bs.gt.poses[:-1]) @ bs.gt.poses[1:])[:, 3:], axis=0))
     print(f"{args.path}: {bs.sequence.n_frames} frames, {int(gaps.sum())} intervals no track spans; "
-          f"model: {bs.model['mode']}; smoother settings changed: {args.set or 'none'}")
+          f"net turn {np.round(net_turn, 1).tolist()} deg; model: {bs.model['mode']}; "
+          f"smoother settings changed: {args.set or 'none'}")
     initial = get_estimator("ekf-invariant")(bs.sequence, config)
     for name in args.estimators.split(","):
         est = initial if name == "ekf-invariant" else get_estimator(name)(

@@ -8,7 +8,7 @@ from scipy.stats import chi2
 
 from vislam.ekf.errors import InputError
 from vislam.ekf.estimate import Estimate
-from vislam.ekf.geometry import se3_exp, so3_exp
+from vislam.ekf.geometry import se3_exp, se3_log, so3_exp
 from vislam.eval.metrics import (
     align_trajectory,
     ate_rmse,
@@ -19,6 +19,7 @@ from vislam.eval.metrics import (
     rotation_angle,
     rpe,
     trajectory_metrics,
+    turn_scale_error,
     umeyama,
 )
 
@@ -116,6 +117,44 @@ def test_interval_errors_recover_a_known_error_per_interval():
         est[k + 1] = est[k] @ (np.linalg.inv(gt[k]) @ gt[k + 1]) @ se3_exp(e[k])
     np.testing.assert_allclose(interval_errors(est, gt), e, atol=1e-12)
     assert interval_errors(est[:1], gt[:1]).shape == (0, 6)
+
+
+def _scaled_turns(gt, k, noise, rng):
+    """An estimate of ``gt`` whose every step turns by (1 + k) times the true turn, with white
+    rotation noise ``noise`` (rad) on top; the true interval motions beside it."""
+    true = se3_log(np.linalg.inv(gt[:-1]) @ gt[1:])
+    step = true.copy()
+    step[:, 3:] *= 1.0 + k
+    step[:, 3:] += rng.normal(0, noise, step[:, 3:].shape)
+    est = np.empty_like(gt)
+    est[0] = gt[0]
+    for i, xi in enumerate(step):
+        est[i + 1] = est[i] @ se3_exp(xi)
+    return est, true
+
+
+def test_turn_scale_error_recovers_a_known_scale_and_its_standard_error():
+    rng = np.random.default_rng(12)
+    gt = _random_drive(rng, n=400)
+    est, true = _scaled_turns(gt, 0.01, 0.0, rng)
+    k, sd = turn_scale_error(interval_errors(est, gt), true)
+    assert k == pytest.approx(0.01, rel=2e-3)  # exact up to the BCH terms of a 1 % change
+    assert sd < 1e-4
+    ks, sds = [], []
+    for _ in range(200):  # white rotation noise: the standard error is the spread of k
+        est, true = _scaled_turns(gt[:80], -0.02, 2e-3, rng)
+        k, sd = turn_scale_error(interval_errors(est, gt[:80]), true)
+        ks.append(k)
+        sds.append(sd)
+    assert np.mean(ks) == pytest.approx(-0.02, abs=4 * np.std(ks) / np.sqrt(len(ks)))
+    assert np.mean(sds) == pytest.approx(np.std(ks), rel=0.15)
+
+
+def test_turn_scale_error_is_nan_without_turns():
+    gt = np.repeat(np.eye(4)[None], 5, axis=0)
+    gt[:, 0, 3] = np.arange(5.0)
+    k, sd = turn_scale_error(interval_errors(gt, gt), se3_log(np.linalg.inv(gt[:-1]) @ gt[1:]))
+    assert np.isnan(k) and np.isnan(sd)
 
 
 def test_umeyama_recovers_a_known_transform_exactly():
