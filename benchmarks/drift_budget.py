@@ -44,6 +44,11 @@ from vislam.graph.settings import SmootherSettings
 LONG_RUN_WINDOW = 16  # intervals summed for the long-run variance
 
 
+def motions(poses: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """The motions ``se3_log(P_k^-1 P_k+1)`` (n, 6) of the intervals starting at ``k``."""
+    return se3_log(se3_inv(poses[k]) @ poses[k + 1])
+
+
 def part_nees(est, frames, gt_poses, rows: slice) -> float:
     """Mean NEES of the translation (rows 0:3) or rotation (3:6) part over frames 1..."""
     xi = pose_errors(est.poses[frames], gt_poses)[1:, rows]
@@ -62,7 +67,7 @@ def drift_lines(name, est, gt, gaps: np.ndarray) -> list[str]:
            f"rotation error {np.round(rot_err, 2).tolist()} deg, sigma {np.round(rot_sd, 2).tolist()} deg"]
     consecutive = np.flatnonzero(np.diff(frames) == 1)  # intervals [k, k+1] with truth at both
     e = interval_errors(est.poses[frames], gt.poses)[consecutive]
-    true = se3_log(se3_inv(gt.poses[consecutive]) @ gt.poses[consecutive + 1])
+    true = motions(gt.poses, consecutive)
     gap = gaps[frames[consecutive]]
     for label, sel in (("gaps", gap), ("vision", ~gap)):
         if not sel.any():
@@ -83,7 +88,7 @@ def velocity_lines(seq, config: FilterConfig, gt) -> list[str]:
     k = np.flatnonzero(np.diff(frames) == 1)
     twist, tau = interval_twists(seq, config.velocity_pairing)
     f0 = frames[k]
-    true = se3_log(se3_inv(gt.poses[k]) @ gt.poses[k + 1])  # the true interval motions
+    true = motions(gt.poses, k)  # the true interval motions
     err = twist[f0] - true / tau[f0][:, None]
     sigma = np.r_[config.velocity_sigmas, config.gyro_sigmas]
     w = LONG_RUN_WINDOW
@@ -124,7 +129,7 @@ def main(argv=None) -> int:
     cleaned, _ = clean_sequence(bs.sequence, min_disparity=config.min_disparity)
     rows, _ = usable_rows(cleaned, config.min_disparity)
     gaps = unconstrained_intervals(rows, cleaned.n_frames)
-    net_turn = np.degrees(np.sum(se3_log(se3_inv(bs.gt.poses[:-1]) @ bs.gt.poses[1:])[:, 3:], axis=0))
+    net_turn = np.degrees(motions(bs.gt.poses, np.arange(bs.gt.n - 1))[:, 3:].sum(axis=0))
     print(f"{args.path}: {bs.sequence.n_frames} frames, {int(gaps.sum())} intervals no track spans; "
           f"net turn {np.round(net_turn, 1).tolist()} deg; model: {bs.model['mode']}; "
           f"smoother settings changed: {args.set or 'none'}")
