@@ -218,6 +218,20 @@ class NoiseModels:
             self.calibration, self.body_P_sensor,
         )
 
+    def add_stereo_factors(self, graph: gtsam.NonlinearFactorGraph, rows: StereoRows,
+                           robust: bool = True) -> None:
+        """One :meth:`stereo_factor` per row of ``rows``, appended to ``graph`` in row order
+        (keys and pixels converted to Python numbers once, not per factor: a batch graph has
+        some 10^5 of them, built two or three times per solve)."""
+        factor, point = gtsam.GenericStereoFactor3D, gtsam.StereoPoint2
+        noise = self.stereo if robust else self.stereo_gaussian
+        calibration, body_P_sensor = self.calibration, self.body_P_sensor
+        x_keys = (X(0) + rows.frame.astype(np.int64)).tolist()  # a Symbol's index is its low bits
+        l_keys = (L(0) + rows.track.astype(np.int64)).tolist()
+        add = graph.add
+        for (u_l, u_r, v), x, l in zip(rows.measured.tolist(), x_keys, l_keys):
+            add(factor(point(u_l, u_r, v), noise, x, l, calibration, body_P_sensor))
+
 
 @dataclass
 class GraphProblem:
@@ -250,9 +264,7 @@ def build_graph(poses: np.ndarray, landmarks: np.ndarray, rows: StereoRows,
             graph.add(biased_motion_factor(X(k), X(k + 1), BIAS_KEY, delta, bias.D[k], noise.motion[k]))
     for k, T in enumerate(poses):
         values.insert(X(k), to_pose3(T))
-    measured = rows.measured
-    for i in range(len(rows)):
-        graph.add(noise.stereo_factor(measured[i], rows.frame[i], rows.track[i]))
+    noise.add_stereo_factors(graph, rows)
     tracks = np.unique(rows.track)
     for j in tracks:
         p = landmarks[j]
@@ -279,13 +291,12 @@ def gaussian_stereo(graph: gtsam.NonlinearFactorGraph, rows: StereoRows, first: 
     out = gtsam.NonlinearFactorGraph()
     for i in range(first):
         out.add(graph.at(i))
-    measured = rows.measured
-    for i in range(len(rows)):
-        factor = noise.stereo_factor(measured[i], rows.frame[i], rows.track[i], robust=False)
-        if list(graph.at(first + i).keys()) != list(factor.keys()):
+    noise.add_stereo_factors(out, rows, robust=False)
+    n = len(rows)
+    for i in (0, n // 2, n - 1) if n else ():  # rows in graph order (build_graph puts them so)
+        if i + first >= graph.size() or list(graph.at(first + i).keys()) != list(out.at(first + i).keys()):
             raise ValueError(f"graph factor {first + i} is not the stereo factor of row {i}")
-        out.add(factor)
-    for i in range(first + len(rows), graph.size()):
+    for i in range(first + n, graph.size()):
         out.add(graph.at(i))
     return out
 

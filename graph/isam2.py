@@ -177,8 +177,7 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
         if old.size:
             residual, depth = stereo_residuals(poses, landmark_est, calib, rows.subset(old))
             ok = (np.linalg.norm(residual, axis=1) <= _GATE_FACTOR * settings.outlier_threshold_px) & (depth >= settings.min_depth)
-            for i in old[ok]:
-                graph.add(noise.stereo_factor(measured[i], k, rows.track[i]))
+            noise.add_stereo_factors(graph, rows.subset(old[ok]))  # rows of frame k
             used[old[ok]] = True
             rejected[k] += int(np.sum(~ok))
         # second observations: triangulate, check cheirality in both cameras, add

@@ -11,7 +11,11 @@ own linearisation at the solution (robust weights included):
    landmark only couples the poses of its track;
 3. a banded Cholesky ``S = L L^T`` and the block Takahashi recursion for the entries of
    ``S^-1`` inside the band, from the last pose backwards:
-   ``Sigma_sj = -Sigma_ss L_sj L_jj^-1``, ``Sigma_jj = L_jj^-T L_jj^-1 - Sigma_sj^T L_sj L_jj^-1``;
+   ``Sigma_sj = -Sigma_ss L_sj L_jj^-1``, ``Sigma_jj = L_jj^-T L_jj^-1 - Sigma_sj^T L_sj L_jj^-1``,
+   ``s`` over the poses below ``j`` inside ``L``'s envelope (fill-in stays inside the envelope
+   of ``S``: a pose's rows reach no further than the last pose that shares a landmark or a
+   factor with a pose at or before it), so each step costs what its own stretch of the drive
+   needs, not the drive's longest track;
 4. each landmark's covariance ``A_l + B Sigma_pp B^T`` with ``A_l = H_ll^-1``,
    ``B = -H_ll^-1 H_lp``, over the poses of its track (all inside the band).
 
@@ -139,7 +143,10 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
     A_l = np.linalg.inv(H_ll)
     H_lp = H[:n_l, n_l:].tocsr()
     H_pp = H[n_l:, n_l:]
-    A_blocks = sp.block_diag(list(A_l), format="csr") if n_lm else sp.csr_matrix((0, 0))
+    # block-diagonal H_ll^-1 straight into CSR: row 3b+i holds A_l[b, i] in columns 3b..3b+2
+    block_cols = (3 * (np.arange(3 * n_lm) // 3))[:, None] + np.arange(3)
+    A_blocks = sp.csr_matrix((A_l.ravel(), block_cols.ravel(), 3 * np.arange(3 * n_lm + 1)),
+                             shape=(3 * n_lm, 3 * n_lm))
     S = (H_pp - H_lp.T @ (A_blocks @ H_lp)).tocoo() if n_lm else H_pp.tocoo()
     # --- banded Cholesky of the reduced pose system ---------------------------------------
     n = 6 * n_frames
@@ -160,6 +167,11 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
         raise EstimationError(
             f"marginals: the pose information matrix is not positive definite{where} "
             f"(an under-constrained pose)") from None
+
+    # L's envelope, in poses: the last pose whose rows reach pose p (have a nonzero of S in a
+    # column at or before p); the Takahashi step at p needs Sigma over poses p+1..reach[p] only.
+    last_nonzero = w - np.argmax(ab[::-1] != 0, axis=0)  # per column of S, below the diagonal
+    reach = np.maximum.accumulate(((np.arange(n) + last_nonzero) // 6).reshape(n_frames, 6).max(axis=1))
 
     def L_block(first: int, m: int, j0: int) -> np.ndarray:
         """Dense ``L[first:first + m, j0:j0 + 6]`` from the banded factor (``first >= j0``,
@@ -185,8 +197,7 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
     entry_order = np.argsort(first_pose[entry_lm], kind="stable")
     entry_start = np.searchsorted(first_pose[entry_lm][entry_order], np.arange(n_frames + 1))
 
-    K = 6 * (wp + 1)
-    window = np.zeros((K, K))  # Sigma over entries [6p, 6p + K)
+    window = np.zeros((6, 6))  # Sigma over the poses p+1..reach[p+1]
     pose_cov = np.empty((n_frames, 6, 6))
     pair_cov = np.zeros((max(n_frames - 1, 0), 6, 6))
     landmark_cov = np.full((n_tracks, 3, 3), np.nan)
@@ -194,10 +205,10 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
     landmark_cov[tracks[unobserved]] = A_l[unobserved]
     for p in range(n_frames - 1, -1, -1):
         j0 = 6 * p
-        m = min(K - 6, n - j0 - 6)  # rows of the band below this block
+        m = 6 * (int(reach[p]) - p)  # rows of L's envelope below this block
         L_jj = L_block(j0, 6, j0)
         L_jj_inv = np.linalg.inv(L_jj)
-        new = np.zeros((K, K))
+        new = np.empty((6 + m, 6 + m))  # Sigma over the poses p..reach[p]
         if m > 0:
             L_sj = L_block(j0 + 6, m, j0)
             S_ss = window[:m, :m]
@@ -217,7 +228,7 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
         if landmarks and group.size:
             landmark_cov[tracks[group]] = _landmark_covariances(
                 A_l[group], new, slot, entry_order[entry_start[p]:entry_start[p + 1]],
-                entry_lm, entry_row, entry_col, H_lp_csr.data, tracks, K)
+                entry_lm, entry_row, entry_col, H_lp_csr.data, tracks)
     if pairs:  # log det H = log det H_ll + log det S (the Schur complement's Cholesky)
         log_det = float(np.sum(np.linalg.slogdet(H_ll)[1])) if n_lm else 0.0
         log_det += 2.0 * float(np.sum(np.log(Lb[0])))
@@ -227,17 +238,18 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
 
 def _landmark_covariances(A_g: np.ndarray, window: np.ndarray, slot: np.ndarray,
                           entries: np.ndarray, entry_lm: np.ndarray, entry_row: np.ndarray,
-                          entry_col: np.ndarray, data: np.ndarray, tracks: np.ndarray,
-                          K: int) -> np.ndarray:
+                          entry_col: np.ndarray, data: np.ndarray,
+                          tracks: np.ndarray) -> np.ndarray:
     """Step 4 of the module docstring for the landmarks whose first pose is the window's:
     ``A_l + B Sigma_pp B^T`` with ``B = -A_l H_lp`` over the poses their tracks span (``A_g``
     their ``H_ll^-1``, ``entries`` their nonzeros of ``H_lp``, columns from the first pose)."""
     span = int(entry_col[entries].max()) + 1
-    if span > K:
+    if span > window.shape[0]:
         raise EstimationError("marginals: internal band error at "
                               f"{key_name(L(int(tracks[entry_lm[entries][np.argmax(entry_col[entries])]])))}")
     H_rows = np.zeros((len(A_g), 3, span))
-    np.add.at(H_rows, (slot[entry_lm[entries]], entry_row[entries], entry_col[entries]), data[entries])
+    # one CSR entry per (landmark, row, column): an assignment, no accumulation
+    H_rows[slot[entry_lm[entries]], entry_row[entries], entry_col[entries]] = data[entries]
     B = -A_g @ H_rows
     cov = A_g + (B @ window[:span, :span]) @ np.swapaxes(B, 1, 2)
     return 0.5 * (cov + np.swapaxes(cov, 1, 2))
