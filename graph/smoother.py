@@ -65,7 +65,7 @@ from vislam.ekf.numerics import NumericalGuard
 from vislam.ekf.runner import finish_estimate, prepare_sequence
 from vislam.graph.marginals import batch_marginals
 from vislam.graph.pose_conversions import estimation_error, named_error
-from vislam.graph.settings import INITIALISERS, SmootherSettings
+from vislam.graph.settings import INITIALISERS, LINEAR_SOLVERS, SmootherSettings
 from vislam.graph.twist_smoothness import smoothness_sigma
 
 log = logging.getLogger(__name__)
@@ -143,13 +143,15 @@ def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings,
     params.setMaxIterations(int(settings.max_iterations))
     params.setRelativeErrorTol(settings.relative_error_tol if relative_tol is None else relative_tol)
     params.setAbsoluteErrorTol(settings.absolute_error_tol)
+    params.setUseFixedLambdaFactor(settings.lm_damping == "fixed")
+    params.setLinearSolverType(LINEAR_SOLVERS[settings.linear_solver])
     try:
         optimizer = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, params)
-        initial_error = problem.graph.error(problem.values)
+        initial_error = optimizer.error()  # the graph's error at the values, as LM keeps it
         result = _optimize(optimizer, params)
+        final_error = optimizer.error()
     except RuntimeError as exc:
         raise estimation_error(exc, "optimising") from None
-    final_error = problem.graph.error(result)
     if not np.isfinite(final_error):
         raise EstimationError("smoother failed while optimising: the error is not finite "
                               "(a non-finite measurement or initial value)")

@@ -119,6 +119,25 @@ def test_nothing_to_reject_still_ends_at_the_final_tolerance(noisy):
                           init="dead-reckoning")
     assert same.iterations == one.iterations and np.array_equal(same.poses, one.poses)
 
+def test_damping_rules_and_linear_solvers_reach_the_same_solution(noisy):
+    """How LM damps and which linear solver it uses change the path, not the answer: each
+    ``lm_damping`` and ``linear_solver`` ends within a hair of the defaults (Nielsen's rule,
+    sequential Cholesky). Each setting is used: the other damping rule and QR do not
+    reproduce the defaults' floating-point result."""
+    from vislam.graph.settings import LINEAR_SOLVERS, LM_DAMPING_MODES
+
+    seq = noisy.sequence
+    base = solve_smoother(seq, CONFIG, SmootherSettings(), init="dead-reckoning")
+    variants = [{"lm_damping": d} for d in LM_DAMPING_MODES if d != "nielsen"]
+    variants += [{"linear_solver": s} for s in LINEAR_SOLVERS if s != "sequential-cholesky"]
+    for changes in variants:
+        other = solve_smoother(seq, CONFIG, SmootherSettings(**changes), init="dead-reckoning")
+        np.testing.assert_allclose(other.poses, base.poses, rtol=0, atol=1e-5, err_msg=str(changes))
+        assert abs(other.errors[-1][1] - base.errors[-1][1]) <= 1e-6 * base.errors[-1][1], changes
+        if changes.get("linear_solver") != "multifrontal-cholesky":  # the same sums, regrouped
+            assert other.errors[-1][1] != base.errors[-1][1], f"{changes} has no effect"
+
+
 @pytest.mark.slow
 def test_noisy_smoother_beats_the_ekf(noisy):
     from vislam.ekf.estimators import ESTIMATORS
