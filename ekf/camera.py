@@ -141,3 +141,54 @@ def triangulate_unscented(
     d = y - mean[:, None, :]
     cov = np.einsum("s,nsi,nsj->nij", wc, d, d)
     return mean, cov
+
+
+# --- a radial lens term -------------------------------------------------------------------------
+# The pixels of a file may carry a residual radial distortion that K does not describe. With
+# one coefficient k1 (Brown-Conrady, normalised coordinates about the principal point, each
+# image about its own, the same (cu, cv) in a rectified pair):
+#     x_d = x (1 + k1 r^2),   r^2 = x^2 + y^2,   x = (u - cu) / fsu,  y = (v - cv) / fsv.
+# vislam removes it from the measurements once (ekf.model.model_sequence), so that every
+# estimator keeps the pinhole model of paper eq. 1-3.
+
+
+def _radius_undistorted(r_d: np.ndarray, k1: float) -> np.ndarray:
+    """The radius ``r`` with ``r (1 + k1 r^2) = r_d`` (Newton from ``r_d``; monotone where
+    ``1 + 3 k1 r^2 > 0``, which :func:`undistort_pixels` checks)."""
+    r = r_d.copy()
+    for _ in range(20):
+        f = r * (1.0 + k1 * r * r) - r_d
+        r = r - f / (1.0 + 3.0 * k1 * r * r)
+    return r
+
+
+def distort_pixels(z: np.ndarray, K: np.ndarray, k1: float) -> np.ndarray:
+    """Stereo pixels ``[uL, vL, uR, vR]`` (N, 4) of a pinhole camera as a lens with radial
+    coefficient ``k1`` shows them (the simulator's fault; :func:`undistort_pixels` inverts)."""
+    z = np.array(z, dtype=float)
+    fsu, fsv, cu, cv = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    for c in (0, 2):
+        x, y = (z[:, c] - cu) / fsu, (z[:, c + 1] - cv) / fsv
+        s = 1.0 + k1 * (x * x + y * y)
+        z[:, c], z[:, c + 1] = cu + fsu * x * s, cv + fsv * y * s
+    return z
+
+
+def undistort_pixels(z: np.ndarray, K: np.ndarray, k1: float) -> np.ndarray:
+    """The pinhole pixels (N, 4) of stereo pixels ``z`` that carry a radial term ``k1``
+    (:func:`distort_pixels` inverted). Raises ValueError where the lens map folds over
+    (``1 + 3 k1 r^2 <= 0``: not invertible there). Non-finite rows stay non-finite."""
+    z = np.array(z, dtype=float)
+    fsu, fsv, cu, cv = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    for c in (0, 2):
+        x_d, y_d = (z[:, c] - cu) / fsu, (z[:, c + 1] - cv) / fsv
+        r_d = np.hypot(x_d, y_d)
+        r = _radius_undistorted(r_d, k1)
+        fold = ~(1.0 + 3.0 * k1 * r * r > 0) & np.isfinite(r_d)
+        if np.any(fold):
+            raise ValueError(f"a radial term k1 = {k1:g} folds the image over at normalised "
+                             f"radius {float(r_d[fold].min()):.3g} (1 + 3 k1 r^2 <= 0)")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            scale = np.where(r_d > 0, r / r_d, 1.0)
+        z[:, c], z[:, c + 1] = cu + fsu * x_d * scale, cv + fsv * y_d * scale
+    return z

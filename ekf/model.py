@@ -13,6 +13,8 @@ two disagree::
     pixel_sigma = 0.3                           # px, each of uL vL uR vR
     gyro_bias = [0.001, -0.002, 0.0005]         # rad/s; absent: the data supports none
     gyro_bias_sigma = [1e-4, 1e-4, 1e-4]        # rad/s (optional, informative)
+    radial_k1 = 0.01                            # lens radial term; absent: the data supports none
+    radial_k1_sigma = 0.001                     # (optional, informative)
     velocity_pairing = "next"                   # "current", "next" or "mean"
     cam_T_imu = [                               # 4x4, rows; rigid
         [r11, r12, r13, tx], [r21, r22, r23, ty], [r31, r32, r33, tz], [0.0, 0.0, 0.0, 1.0],
@@ -40,8 +42,13 @@ errors are :class:`ekf.errors.InputError` naming the file, the table and the key
 named too. ``Model.to_toml()`` writes the small TOML subset needed (numbers with ``repr``
 precision, so a model reads back exactly equal).
 
-Using a model (:func:`apply_model`): the sequence gets the model's ``cam_T_imu`` and has the
-model's gyro bias subtracted from its angular velocities; the config gets the model's velocity
+The radial term. ``radial_k1`` is a lens distortion the file's pixels carry beyond its pinhole
+``K``: ``x_d = x (1 + k1 r^2)`` in normalised coordinates about the principal point
+(:mod:`ekf.camera`). It is absent when the data support none.
+
+Using a model (:func:`apply_model`): the sequence gets the model's ``cam_T_imu``, has the
+model's gyro bias subtracted from its angular velocities and its radial term removed from its
+pixels (:func:`ekf.camera.undistort_pixels`); the config gets the model's velocity
 and gyro sigmas, pixel sigma and velocity pairing. A model with a bias leaves
 ``config.gyro_bias`` (estimating a residual bias, from zero, with ``gyro_bias_sigma``) as the
 config says; a model saying "no bias" sets ``gyro_bias=False``. Ground truth must be converted
@@ -84,6 +91,8 @@ MODEL_RIGID_TOL = 1e-5
 MAX_LEVER_ARM = 1e3
 #: Largest gyro bias accepted (rad/s), as the simulator's.
 MAX_GYRO_BIAS = 10.0
+#: Largest radial coefficient accepted (normalised coordinates; KITTI's raw lenses: about 0.37).
+MAX_RADIAL_K1 = 1.0
 #: Longest ``source`` text.
 MAX_SOURCE_CHARS = 10_000
 #: FilterConfig fields a model sets (``gyro_bias`` only when the model says "no bias").
@@ -141,6 +150,14 @@ def _check_bias_sigma(value: Any) -> tuple[float, float, float]:
                    f"an array of 3 positive numbers from {SIGMA_MIN:g} to 1000 rad/s")
 
 
+def _check_radial(value: Any) -> float:
+    return Rule("float", -MAX_RADIAL_K1, MAX_RADIAL_K1).check(value)
+
+
+def _check_radial_sigma(value: Any) -> float:
+    return sigma(1e3).check(value)
+
+
 def _check_extrinsic_sigma(value: Any) -> tuple[float, ...]:
     return _vector(value, sigma(1e6), 6,
                    f"an array of 6 positive numbers from {SIGMA_MIN:g} to 1e+06 (translation m, "
@@ -187,6 +204,8 @@ MODEL_CHECKS = {
     "pixel_sigma": _check_pixel_sigma,
     "gyro_bias": _check_bias,
     "gyro_bias_sigma": _check_bias_sigma,
+    "radial_k1": _check_radial,
+    "radial_k1_sigma": _check_radial_sigma,
     "velocity_pairing": _check_pairing,
     "cam_T_imu": _check_matrix,
     "cam_T_imu_sigma": _check_extrinsic_sigma,
@@ -245,6 +264,11 @@ class Model:
     gyro_bias: tuple[float, float, float] | None = None
     #: Standard deviation of the identified bias (rad/s, 3), if known.
     gyro_bias_sigma: tuple[float, float, float] | None = None
+    #: Radial lens term of the pixels (normalised coordinates), or None when the data
+    #: support none.
+    radial_k1: float | None = None
+    #: Standard deviation of the identified radial term, if known.
+    radial_k1_sigma: float | None = None
     #: Sigmas of the extrinsic (translation m, then rotation rad), None if not estimated.
     cam_T_imu_sigma: tuple[float, ...] | None = None
     #: Extrinsic components the drive cannot determine (names from EXTRINSIC_COMPONENTS).
@@ -257,7 +281,8 @@ class Model:
     def __post_init__(self) -> None:
         values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                   if f.name != "file"}
-        for key in ("gyro_bias", "gyro_bias_sigma", "cam_T_imu_sigma"):
+        for key in ("gyro_bias", "gyro_bias_sigma", "radial_k1", "radial_k1_sigma",
+                    "cam_T_imu_sigma"):
             if values[key] is None:
                 del values[key]
         for name, value in _check_values(values, "model setting").items():
@@ -340,8 +365,9 @@ class Model:
         """The model as TOML text: a ``[model]`` table and, when the file's values are known,
         a ``[file]`` table. Reads back (``from_toml``) exactly equal."""
         lines = [f"{MODEL_FILE_HEADER}, ekf/model.py): noise sigmas per axis x y z",
-                 "# (m/s, rad/s), pixel sigma (px), gyro bias (rad/s, absent: none), velocity",
-                 "# pairing, cam_T_imu (rows) and its sigmas (translation m, then rotation rad).",
+                 "# (m/s, rad/s), pixel sigma (px), gyro bias (rad/s, absent: none), radial lens",
+                 "# term (absent: none), velocity pairing, cam_T_imu (rows) and its sigmas",
+                 "# (translation m, then rotation rad).",
                  "[model]"]
         lines += _toml_items(self.to_dict())
         if self.file:
@@ -452,13 +478,28 @@ def with_extrinsic(seq, cam_T_imu: np.ndarray):
 
 
 def model_sequence(seq, model: Model):
-    """``seq`` with the model's extrinsic as ``calibration.cam_T_imu`` and the model's gyro
-    bias (if any) subtracted from the angular velocities. Apply once per sequence."""
+    """``seq`` with the model's extrinsic as ``calibration.cam_T_imu``, the model's gyro
+    bias (if any) subtracted from the angular velocities and its radial term (if any) removed
+    from the pixels. Apply once per sequence."""
     seq = with_extrinsic(seq, model.cam_T_imu)
+    if model.radial_k1 is not None:
+        seq = without_radial(seq, model.radial_k1)
     if model.gyro_bias is None:
         return seq
     return dataclasses.replace(seq, angular_velocity=np.asarray(seq.angular_velocity, dtype=float)
                                - np.asarray(model.gyro_bias)[None, :])
+
+
+def without_radial(seq, k1: float):
+    """``seq`` with the radial term ``k1`` removed from its pixels
+    (:func:`ekf.camera.undistort_pixels`); InputError where ``k1`` folds its image over."""
+    from vislam.ekf.camera import undistort_pixels
+
+    try:
+        z = undistort_pixels(seq.obs.z, np.asarray(seq.calibration.K, dtype=float), float(k1))
+    except ValueError as exc:
+        raise InputError(f"model setting 'radial_k1': {exc}") from None
+    return dataclasses.replace(seq, obs=dataclasses.replace(seq.obs, z=z))
 
 
 def interval_sigma_factor(pairing: str) -> float:

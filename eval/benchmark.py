@@ -708,8 +708,10 @@ def _model_line(model: dict | None) -> str:
         f"{x:.2g}" for x in m["gyro_bias"])
     how = {"identified": "identified from the data" + (" (cached)" if model.get("cached") else ""),
            "config": "from " + str(model.get("source", "--config"))}.get(mode, str(mode))
+    radial = "" if m.get("radial_k1") is None else f", radial lens term k1 {m['radial_k1']:.3g}"
     text = (f"Model {how}: velocity sigma {v} m/s, gyro sigma {g} rad/s, pixel sigma "
-            f"{m.get('pixel_sigma', float('nan')):.3g} px, pairing {m.get('velocity_pairing')}, {bias}")
+            f"{m.get('pixel_sigma', float('nan')):.3g} px, pairing {m.get('velocity_pairing')}, "
+            f"{bias}{radial}")
     test = (model.get("identification") or {}).get("extrinsic_test") or {}
     if test:
         against = (f" against {test['threshold']:.3g}, {test.get('criterion', 'chi-square')}"

@@ -38,7 +38,7 @@ from vislam.graph.settings import SmootherSettings
 log = logging.getLogger(__name__)
 
 #: Changes whenever the identification would give a different answer on the same input.
-IDENTIFICATION_VERSION = "2026-11-24.5"
+IDENTIFICATION_VERSION = "2026-11-25.2"
 
 
 @dataclass
@@ -109,6 +109,8 @@ def fit_report(fit) -> dict:
         "cam_T_imu_undetermined": list(fit.cam_T_imu_undetermined),
         "extrinsic_test": dict(fit.extrinsic_test),
         "bias_test": dict(fit.bias_test),
+        "radial_k1_std": None if fit.radial_k1_std is None else float(fit.radial_k1_std),
+        "radial_test": dict(fit.radial_test),
         "pairing_scores": dict(fit.pairing_scores),
         "em_steps": int(fit.iterations),
         "converged": bool(fit.converged),

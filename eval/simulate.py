@@ -78,7 +78,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from vislam.ekf.camera import project
+from vislam.ekf.camera import distort_pixels, project
 from vislam.ekf.errors import InputError
 from vislam.ekf.geometry import homogeneous, se3_exp, se3_inv, so3_exp
 from vislam.ekf.sequence import Calibration, Observations, Sequence
@@ -182,6 +182,9 @@ class SimConfig:
     #: [dtx, dty, dtz, drx, dry, drz] (m, rad) added (module docstring).
     file_extrinsic_fault: str = "none"
     file_extrinsic_offset: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    #: A radial lens term the file's pixels carry beyond its pinhole K (ekf.camera: x_d =
+    #: x (1 + k1 r^2)); the image bounds apply to the distorted pixels, the noise is added after.
+    radial_k1: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2**63:
@@ -243,6 +246,13 @@ class SimConfig:
                 f"simulation: gyro_bias must be 3 numbers within +-10 rad/s, got {self.gyro_bias!r}"
             )
         object.__setattr__(self, "gyro_bias", tuple(float(x) for x in bias))
+        from vislam.ekf.model import MAX_RADIAL_K1
+
+        if not (isinstance(self.radial_k1, (int, float, np.floating)) and np.isfinite(self.radial_k1)
+                and abs(self.radial_k1) <= MAX_RADIAL_K1):
+            raise InputError(f"simulation: radial_k1 must be a number within +-{MAX_RADIAL_K1:g}, "
+                             f"got {self.radial_k1!r}")
+        object.__setattr__(self, "radial_k1", float(self.radial_k1))
         if self.velocity_pairing not in SIM_VELOCITY_PAIRINGS:
             raise InputError(f"simulation: velocity_pairing must be one of "
                              f"{', '.join(SIM_VELOCITY_PAIRINGS)}, got {self.velocity_pairing!r}")
@@ -343,6 +353,7 @@ def true_model(result: SimResult):
         velocity_pairing=config.velocity_pairing,
         cam_T_imu=result.cam_T_imu,
         gyro_bias=bias,
+        radial_k1=config.radial_k1 or None,
         source=f"vislam simulate: the true model of {result.sequence.name} ({seed_text})",
         file={"cam_T_imu": result.sequence.calibration.cam_T_imu},
     )
@@ -487,6 +498,8 @@ def _observe(
         depth = q[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             z0 = project(M, homogeneous(q))  # paper eq. 1-3
+            if config.radial_k1:
+                z0 = distort_pixels(z0, calib.K, config.radial_k1)
         visible = (
             (depth >= config.min_depth)
             & (depth <= config.max_depth)

@@ -64,7 +64,7 @@ from scipy.stats import chi2
 from vislam.ekf.config import VELOCITY_PAIRINGS, FilterConfig
 from vislam.ekf.conventions import estimate_cov_to_gtsam
 from vislam.ekf.errors import EstimationError
-from vislam.ekf.model import interval_sigma_factor, with_extrinsic
+from vislam.ekf.model import interval_sigma_factor, with_extrinsic, without_radial
 from vislam.ekf.sequence import Sequence
 from vislam.graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
 from vislam.graph.settings import SmootherSettings
@@ -126,6 +126,11 @@ class ModelFit:
     #: the file's extrinsic against the identified one: statistic, dof, threshold, decision
     extrinsic_test: dict = field(default_factory=dict)
     bias_test: dict = field(default_factory=dict)
+    #: the pixels' radial lens term (graph.radial), None when the data support none
+    radial_k1: float | None = None
+    radial_k1_std: float | None = None
+    #: the radial term against none: estimate, statistic, threshold, decision, profile
+    radial_test: dict = field(default_factory=dict)
     #: pairing -> sum over the 6 axes of log(per-sample sigma^2) (lower is better: the decision)
     pairing_scores: dict = field(default_factory=dict)
     #: pairing -> Laplace -2 log L under independent intervals (reported; it favours "mean",
@@ -158,6 +163,8 @@ class ModelFit:
             cam_T_imu=np.array(self.cam_T_imu),
             gyro_bias=None if self.gyro_bias is None else tuple(map(float, self.gyro_bias)),
             gyro_bias_sigma=None if self.gyro_bias_std is None else tuple(map(float, self.gyro_bias_std)),
+            radial_k1=None if self.radial_k1 is None else float(self.radial_k1),
+            radial_k1_sigma=None if self.radial_k1 is None else float(self.radial_k1_std),
             cam_T_imu_sigma=sigma,
             cam_T_imu_undetermined=tuple(n for n in EXTRINSIC_COMPONENTS
                                          if n in self.cam_T_imu_undetermined),
@@ -368,12 +375,14 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
                    settings: SmootherSettings = SmootherSettings(), *,
                    pairings: tuple[str, ...] = VELOCITY_PAIRINGS,
                    max_iterations: int = 12, rtol: float = 0.01,
-                   extrinsic: bool = True) -> ModelFit:
+                   extrinsic: bool = True, radial: bool = True) -> ModelFit:
     """The model of ``seq`` by EM (module docstring): per-axis velocity and gyro sigma, pixel
     sigma, the velocity pairing with the largest likelihood, a gyro bias when a
-    likelihood-ratio supports it (BIC) and (``extrinsic``) the camera-IMU extrinsic with its
-    covariance. ``config`` gives the starting point and every other filter setting;
-    ``settings`` the smoother's."""
+    likelihood-ratio supports it (BIC), (``extrinsic``) the camera-IMU extrinsic with its
+    covariance and (``radial``) a radial lens term of the pixels when a likelihood ratio
+    supports one (BIC; :mod:`graph.radial`). ``config`` gives the starting point and every
+    other filter setting; ``settings`` the smoother's."""
+    from vislam.graph.radial import radial_profile
     from vislam.graph.smoother import solve_smoother
 
     t0 = time.perf_counter()
@@ -419,6 +428,20 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
                       extrinsic=extrinsic, cam_T_imu=em.cam_T_imu, warm_start=em.solution)
         total_steps += em.steps
         fits[best] = em
+
+    # The radial lens term, at the identified noise levels and extrinsic. When the data
+    # support one, the pixels lose it and EM continues from the solution under it (the pixel
+    # sigma and the extrinsic move with it); everything after works on those pixels.
+    radial_fit = None
+    if radial:
+        radial_fit = radial_profile(with_extrinsic(seq, em.cam_T_imu), em.config, with_bias,
+                                    em.solution)
+        if radial_fit.k1 is not None:
+            seq = without_radial(seq, radial_fit.k1)
+            em = em_noise(seq, em.config, with_bias, max_iterations=max_iterations, rtol=rtol,
+                          extrinsic=extrinsic, cam_T_imu=em.cam_T_imu,
+                          warm_start=radial_fit.solution)
+            total_steps += em.steps
 
     # The file's extrinsic is kept unless the data refute it (BIC; see EXTRINSIC_TEST_LEVEL): a
     # poorly determined component moved by a sigma or two costs accuracy and buys nothing.
@@ -493,6 +516,10 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
             "p_value": float(chi2.sf(statistic, 3)), "decision": "bias" if has_bias else "no bias",
             "estimate": None if solution.gyro_bias is None else list(map(float, solution.gyro_bias)),
         },
+        radial_k1=None if radial_fit is None else radial_fit.k1,
+        radial_k1_std=None if radial_fit is None else radial_fit.std,
+        radial_test={} if radial_fit is None else {"estimate": radial_fit.estimate,
+                                                   "std": radial_fit.std, **radial_fit.test},
         pairing_scores=scores,
         pairing_laplace=laplace,
         iterations=total_steps,

@@ -1,6 +1,7 @@
 """Stereo model z = M pi(q), its Jacobian, and triangulation with its covariance."""
 
 import numpy as np
+import pytest
 
 from vislam.ekf import camera
 from tests.numdiff import numeric_jacobian
@@ -71,3 +72,26 @@ def test_non_positive_disparity_gives_nan():
     z = np.array([[600.0, 180.0, 600.0, 180.0], [600.0, 180.0, 610.0, 180.0]])
     p, cov = camera.triangulate(z, K, B, np.eye(4))
     assert np.all(np.isnan(p))
+
+
+def test_radial_lens_term_round_trip():
+    """undistort_pixels inverts distort_pixels to 1e-9 px (strong barrel to mild pincushion),
+    and the term moves the pixels."""
+    rng = np.random.default_rng(5)
+    K = np.array([[718.9, 0.0, 607.2], [0.0, 718.9, 185.2], [0.0, 0.0, 1.0]])
+    u = rng.uniform(0.0, 1241.0, 40)
+    v = rng.uniform(0.0, 376.0, 40)
+    z = np.stack([u, v, u - rng.uniform(1.0, 80.0, 40), v], axis=1)
+    for k1 in (0.02, -0.3, 0.0):
+        back = camera.undistort_pixels(camera.distort_pixels(z, K, k1), K, k1)
+        np.testing.assert_allclose(back, z, rtol=0, atol=1e-9)
+    moved = camera.distort_pixels(z, K, 0.02) - z
+    corner = np.argmax(np.hypot(u - 607.2, v - 185.2))
+    assert np.hypot(moved[corner, 0], moved[corner, 1]) > 5.0  # px at the far corner
+
+
+def test_a_radial_term_that_folds_the_image_over_is_refused():
+    K = np.array([[700.0, 0.0, 600.0], [0.0, 700.0, 180.0], [0.0, 0.0, 1.0]])
+    corner = np.array([[1240.0, 370.0, 1200.0, 370.0]])
+    with pytest.raises(ValueError, match="folds the image over"):
+        camera.undistort_pixels(corner, K, -1.0)

@@ -23,7 +23,7 @@ def _model(**changes) -> Model:
     values = dict(
         velocity_sigma=(0.05, 0.06, 0.07), gyro_sigma=(0.005, 0.004, 0.003), pixel_sigma=0.3,
         velocity_pairing="next", cam_T_imu=KITTI_CAM_T_IMU, gyro_bias=(1e-3, -2e-3, 5e-4),
-        gyro_bias_sigma=(1e-4, 1e-4, 2e-4),
+        gyro_bias_sigma=(1e-4, 1e-4, 2e-4), radial_k1=0.01, radial_k1_sigma=1e-3,
         cam_T_imu_sigma=(0.01, 0.02, 0.5, 1e-3, 1e-3, 2e-3), cam_T_imu_undetermined=("tz",),
         source='vislam calibrate "0027.npz"\nsecond line \\ tab\t é', file={"cam_T_imu": np.eye(4)},
     )
@@ -44,6 +44,7 @@ def _args(*argv: str) -> argparse.Namespace:
     {},
     {"gyro_bias": None, "gyro_bias_sigma": None, "cam_T_imu_sigma": None,
      "cam_T_imu_undetermined": (), "file": {}, "source": ""},
+    {"radial_k1": None, "radial_k1_sigma": None},
     {"velocity_sigma": 0.5, "gyro_sigma": [1e-12, 1e3, 0.1 + 0.2], "pixel_sigma": 1,
      "cam_T_imu": se3_exp(np.array([0.1, -0.2, 0.3, 0.01, -0.02, 3.0])),
      "file": {"cam_T_imu": KITTI_CAM_T_IMU, "pixel_sigma": 1.0, "velocity_sigma": [0.5] * 3,
@@ -126,6 +127,9 @@ def _replace_line(key: str, line: str | None) -> str:
     ("cam_T_imu_undetermined", 'cam_T_imu_undetermined = ["z"]', "'cam_T_imu_undetermined' must be an array of distinct names from 'tx'"),
     ("cam_T_imu_undetermined", 'cam_T_imu_undetermined = ["tz", "tz"]', "'cam_T_imu_undetermined'"),
     ("source", "source = 3", "'source' must be text"),
+    ("radial_k1", "radial_k1 = 2.5", "[model]: setting 'radial_k1' must be a number from -1 to 1, got 2.5"),
+    ("radial_k1", 'radial_k1 = "0.01"', "'radial_k1'"),
+    ("radial_k1_sigma", "radial_k1_sigma = 0", "'radial_k1_sigma' must be a positive number"),
     ("source", "bogus = 3", "[model]: unknown setting 'bogus' (valid model settings: source, velocity_sigma"),
 ])
 def test_bad_model_files_name_the_file_table_and_key(tmp_path, key, line, needle):
@@ -205,7 +209,8 @@ def test_config_reads_the_model_and_flags_override_it(tmp_path):
 
 def test_apply_model_replaces_the_extrinsic_and_removes_the_bias():
     seq = simulate(SimConfig(seed=2, n_frames=30)).sequence
-    m = _model(cam_T_imu=se3_exp(np.array([0.1, 0.2, 0.3, 0.0, 0.1, 0.0])) @ KITTI_CAM_T_IMU)
+    m = _model(cam_T_imu=se3_exp(np.array([0.1, 0.2, 0.3, 0.0, 0.1, 0.0])) @ KITTI_CAM_T_IMU,
+               radial_k1=None, radial_k1_sigma=None)  # the lens term: the next test
     s2, c2 = apply_model(seq, FilterConfig(), m)
     np.testing.assert_array_equal(s2.calibration.cam_T_imu, m.cam_T_imu)
     np.testing.assert_array_equal(s2.calibration.K, seq.calibration.K)
@@ -219,6 +224,29 @@ def test_apply_model_replaces_the_extrinsic_and_removes_the_bias():
                                np.r_[m.velocity_sigma, m.gyro_sigma] ** 2, rtol=1e-15)
     s3 = model_sequence(seq, m.replace(gyro_bias=None))
     np.testing.assert_array_equal(s3.angular_velocity, seq.angular_velocity)
+
+
+def test_apply_model_removes_the_radial_lens_term_of_the_pixels():
+    """A drive made through a lens k1: its model's radial term gives back the pinhole pixels
+    (the simulator's before the noise, here noise-free); a term that folds the image over is
+    an InputError naming the key."""
+    from vislam.ekf.camera import project
+    from vislam.ekf.geometry import homogeneous, se3_inv
+
+    lens = simulate(SimConfig(seed=2, n_frames=30, noise_free=True, radial_k1=0.02))
+    pinhole = simulate(SimConfig(seed=2, n_frames=30, noise_free=True))
+    assert lens.model.radial_k1 == 0.02 and pinhole.model.radial_k1 is None
+    seq = lens.sequence
+    frame, track = seq.obs.frame_index, seq.obs.track
+    cam_T_world = seq.calibration.cam_T_imu @ se3_inv(lens.poses[frame])
+    q = np.einsum("nij,nj->ni", cam_T_world[:, :3, :3], lens.landmarks[track]) + cam_T_world[:, :3, 3]
+    truth = project(seq.calibration.M, homogeneous(q))  # the pinhole pixels of every row
+    s2 = model_sequence(seq, lens.model)
+    np.testing.assert_allclose(s2.obs.z, truth, rtol=0, atol=1e-8)
+    assert np.abs(seq.obs.z - truth).max() > 1.0
+    assert model_sequence(pinhole.sequence, pinhole.model).obs is pinhole.sequence.obs
+    with pytest.raises(InputError, match="'radial_k1'.*folds the image over"):
+        model_sequence(lens.sequence, lens.model.replace(radial_k1=-1.0))
 
 
 def test_the_true_model_of_a_faulty_drive_makes_estimates_much_better(tmp_path):

@@ -32,7 +32,7 @@ def test_neutral_values_of_the_new_options_change_no_byte(tmp_path):
     default = _digest(write_simulation(simulate(BASE), tmp_path / "a", "x"))
     explicit = replace(BASE, velocity_sigma=(0.5, 0.5, 0.5), gyro_sigma=(0.05, 0.05, 0.05),
                        velocity_pairing="mean", file_extrinsic_fault="none",
-                       file_extrinsic_offset=(0.0,) * 6)
+                       file_extrinsic_offset=(0.0,) * 6, radial_k1=0.0)
     same = _digest(write_simulation(simulate(explicit), tmp_path / "b", "x"))
     assert set(default) == {"data", "groundtruth", "landmarks", "model"}
     for role in ("data", "groundtruth", "landmarks"):

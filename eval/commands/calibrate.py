@@ -2,7 +2,9 @@
 
 EM around the batch smoother (:mod:`graph.identification`): per-axis velocity and gyro noise,
 the stereo pixel noise, the velocity pairing with the largest likelihood, and a constant gyro
-bias when its likelihood ratio passes the BIC. Prints each value with its standard deviation
+bias when its likelihood ratio passes the BIC, and a radial lens term of the pixels when its
+likelihood ratio passes the BIC (:mod:`graph.radial`; the files carry no distortion
+coefficient, so the file's value is none). Prints each value with its standard deviation
 beside the settings it would replace, and writes the model as TOML (``--out``, the ``[model]``
 table every command's ``--config`` reads).
 
@@ -171,6 +173,9 @@ def report(name: str, frames: int, fit, config) -> str:
         f"{'' if fit.gyro_bias_std is None else _fmt(fit.gyro_bias_std, 2)} | "
         f"{'estimated' if config.gyro_bias else 'off'} |",
         f"| velocity pairing | {fit.pairing} | | {config.velocity_pairing} |",
+        f"| radial lens term k1 (x_d = x (1 + k1 r^2)) | "
+        f"{'none' if fit.radial_k1 is None else f'{fit.radial_k1:.4g}'} | "
+        f"{'' if fit.radial_k1 is None else f'{fit.radial_k1_std:.2g}'} | none |",
     ]
     C, F = fit.cam_T_imu, fit.file_cam_T_imu
     if fit.cam_T_imu_cov is None:
@@ -193,6 +198,13 @@ def report(name: str, frames: int, fit, config) -> str:
     lines.append(f"gyro bias: likelihood ratio {t['statistic']:.1f} against {t['threshold']:.2f} "
                  f"(BIC, 3 ln n; chi-square 3 dof {t['level']:.0%}: {t['chi2_threshold']:.2f}): "
                  f"{t['decision']}")
+    r = fit.radial_test
+    if r:
+        size = "" if not np.isfinite(r["std"]) else (
+            f"; the file's pinhole pixels (no term) are {abs(r['estimate']) / r['std']:.1f} sigma "
+            f"from the estimate {r['estimate']:.4g}")
+        lines.append(f"radial lens term: Wald statistic {r['statistic']:.1f} against "
+                     f"{r['threshold']:.2f} ({r['criterion']}): {r['decision']}{size}")
     scores = ", ".join(f"{p} {s:.2f}" for p, s in sorted(fit.pairing_scores.items(), key=lambda x: x[1]))
     lines.append(f"velocity pairing: sum of log per-sample variance {scores} (lowest wins)")
     if fit.cam_T_imu_undetermined:

@@ -110,6 +110,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "where cam_T_imu's belongs, like the shared data (default %(default)s: the true one)",
     )
     parser.add_argument(
+        "--radial-k1",
+        type=float,
+        default=d.radial_k1,
+        help="a radial lens term the file's pixels carry beyond its pinhole K: x_d = x (1 + k1 "
+        "r^2) in normalised coordinates (default %(default)s: none)",
+    )
+    parser.add_argument(
         "--file-extrinsic-offset",
         type=float,
         nargs=6,
@@ -145,6 +152,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
                                      DEFAULT_SIM.file_extrinsic_fault),
         file_extrinsic_offset=tuple(offset) if offset is not None
         else DEFAULT_SIM.file_extrinsic_offset,
+        radial_k1=getattr(args, "radial_k1", DEFAULT_SIM.radial_k1),
     )
 
 
