@@ -379,8 +379,8 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     """The model of ``seq`` by EM (module docstring): per-axis velocity and gyro sigma, pixel
     sigma, the velocity pairing with the largest likelihood, a gyro bias when a
     likelihood-ratio supports it (BIC), (``extrinsic``) the camera-IMU extrinsic with its
-    covariance and (``radial``) a radial lens term of the pixels when a likelihood ratio
-    supports one (BIC; :mod:`graph.radial`). ``config`` gives the starting point and every
+    covariance and (``radial``) a radial lens term of the pixels when its Wald statistic
+    passes BIC (:mod:`graph.radial`). ``config`` gives the starting point and every
     other filter setting; ``settings`` the smoother's."""
     from vislam.graph.radial import radial_profile
     from vislam.graph.smoother import solve_smoother
@@ -518,8 +518,9 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
         },
         radial_k1=None if radial_fit is None else radial_fit.k1,
         radial_k1_std=None if radial_fit is None else radial_fit.std,
-        radial_test={} if radial_fit is None else {"estimate": radial_fit.estimate,
-                                                   "std": radial_fit.std, **radial_fit.test},
+        radial_test={} if radial_fit is None else {
+            "estimate": radial_fit.estimate,
+            "std": radial_fit.std if np.isfinite(radial_fit.std) else None, **radial_fit.test},
         pairing_scores=scores,
         pairing_laplace=laplace,
         iterations=total_steps,

@@ -54,10 +54,10 @@ class RadialFit:
     """The radial term's estimate, its standard deviation and the test against none."""
 
     k1: float | None  # None: the data support none
-    estimate: float  # the profile's minimum, kept or not
+    estimate: float  # the bias-corrected estimate, kept or not
     std: float  # inf when the profile has no minimum
     test: dict = field(default_factory=dict)
-    solution: object = None  # the smoother's solution at ``estimate`` (warm start for EM)
+    solution: object = None  # the smoother's solution under ``k1`` (warm start for EM)
 
 
 def profile_point(seq: Sequence, config: FilterConfig, settings: SmootherSettings, k1: float,
@@ -159,7 +159,8 @@ def radial_profile(seq: Sequence, config: FilterConfig, settings: SmootherSettin
     std = std * float(np.sqrt(2.0))  # the replicate's own scatter enters the correction
     statistic = (k1 / std) ** 2  # Wald, against none
     keep = statistic > threshold
-    value, sol = profile_point(seq, config, settings, k1, solution)
+    # the solution under the term, where EM goes on from (only when it is kept)
+    sol = profile_point(seq, config, settings, k1, solution)[1] if keep else None
     log.info("radial term: k1 %.5f +- %.5f (profile %.5f, bootstrap bias %.5f), Wald %.1f "
              "against BIC %.1f: %s", k1, std, estimate, bias, statistic, threshold,
              "kept" if keep else "none")

@@ -159,3 +159,24 @@ def test_calibrate_never_replaces_a_users_file_and_checks_its_flags(drive, tmp_p
         err = capsys.readouterr().err
         assert words in err and len(err.strip().splitlines()) == 1
     assert mine.read_text() == "my own notes\n"
+
+
+def test_a_profile_without_a_minimum_means_no_radial_term(monkeypatch):
+    """Where -log L over k1 curves the wrong way (the drive cannot tell), the answer is
+    "none", with an infinite sigma, and no bootstrap is run."""
+    from types import SimpleNamespace
+
+    import vislam.graph.radial as radial
+
+    calls = []
+
+    def concave(seq, config, settings, k1, warm_start):
+        calls.append(k1)
+        return -k1 * k1, None
+
+    monkeypatch.setattr(radial, "profile_point", concave)
+    solution = SimpleNamespace(problem=SimpleNamespace(rows=range(100)))
+    fit = radial.radial_profile(None, FilterConfig(), SETTINGS, solution)
+    assert fit.k1 is None and fit.std == np.inf
+    assert "no minimum" in fit.test["decision"]
+    assert sorted(calls) == [-radial.RADIAL_STEP, 0.0, radial.RADIAL_STEP]

@@ -200,7 +200,7 @@ def report(name: str, frames: int, fit, config) -> str:
                  f"{t['decision']}")
     r = fit.radial_test
     if r:
-        size = "" if not np.isfinite(r["std"]) else (
+        size = "" if r.get("std") is None else (
             f"; the file's pinhole pixels (no term) are {abs(r['estimate']) / r['std']:.1f} sigma "
             f"from the estimate {r['estimate']:.4g}")
         lines.append(f"radial lens term: Wald statistic {r['statistic']:.1f} against "
