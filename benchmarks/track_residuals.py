@@ -37,14 +37,15 @@ def track_correlations(solution) -> tuple[np.ndarray, dict[int, tuple[int, np.nd
     r, _ = stereo_residuals(solution.poses, solution.landmarks, solution.calibration, rows)
     order = np.lexsort((rows.frame, rows.track))
     frame, track, res = rows.frame[order], rows.track[order], r[order]
-    out = {}
+    out, disparity = {}, float("nan")
+    d = res[:, 0] - res[:, 1]
     for lag in LAGS:
         same = (track[lag:] == track[:-lag]) & (frame[lag:] == frame[:-lag] + lag)
         a, b = res[:-lag][same], res[lag:][same]
         out[lag] = (int(same.sum()), np.array([np.corrcoef(a[:, i], b[:, i])[0, 1] for i in range(3)]))
-    same = (track[1:] == track[:-1]) & (frame[1:] == frame[:-1] + 1)
-    d = res[:, 0] - res[:, 1]
-    return r.std(axis=0), out, float(np.corrcoef(d[:-1][same], d[1:][same])[0, 1])
+        if lag == 1:
+            disparity = float(np.corrcoef(d[:-1][same], d[1:][same])[0, 1])
+    return r.std(axis=0), out, disparity
 
 
 def main() -> None:

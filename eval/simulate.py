@@ -246,13 +246,12 @@ class SimConfig:
                 f"simulation: gyro_bias must be 3 numbers within +-10 rad/s, got {self.gyro_bias!r}"
             )
         object.__setattr__(self, "gyro_bias", tuple(float(x) for x in bias))
-        from vislam.ekf.model import MAX_RADIAL_K1
+        from vislam.ekf.model import MODEL_CHECKS
 
-        if not (isinstance(self.radial_k1, (int, float, np.floating)) and np.isfinite(self.radial_k1)
-                and abs(self.radial_k1) <= MAX_RADIAL_K1):
-            raise InputError(f"simulation: radial_k1 must be a number within +-{MAX_RADIAL_K1:g}, "
-                             f"got {self.radial_k1!r}")
-        object.__setattr__(self, "radial_k1", float(self.radial_k1))
+        try:  # the model file's rule for the same value
+            object.__setattr__(self, "radial_k1", MODEL_CHECKS["radial_k1"](self.radial_k1))
+        except ValueError as exc:
+            raise InputError(f"simulation: radial_k1 {exc}") from None
         if self.velocity_pairing not in SIM_VELOCITY_PAIRINGS:
             raise InputError(f"simulation: velocity_pairing must be one of "
                              f"{', '.join(SIM_VELOCITY_PAIRINGS)}, got {self.velocity_pairing!r}")

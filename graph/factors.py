@@ -210,19 +210,12 @@ class NoiseModels:
             motion=[gtsam.noiseModel.Gaussian.Covariance(cov) for cov in motion_covs],
         )
 
-    def stereo_factor(self, measured: np.ndarray, frame: int, track: int,
-                      robust: bool = True) -> gtsam.GenericStereoFactor3D:
-        return gtsam.GenericStereoFactor3D(
-            gtsam.StereoPoint2(float(measured[0]), float(measured[1]), float(measured[2])),
-            self.stereo if robust else self.stereo_gaussian, X(int(frame)), L(int(track)),
-            self.calibration, self.body_P_sensor,
-        )
-
     def add_stereo_factors(self, graph: gtsam.NonlinearFactorGraph, rows: StereoRows,
                            robust: bool = True) -> None:
-        """One :meth:`stereo_factor` per row of ``rows``, appended to ``graph`` in row order
-        (keys and pixels converted to Python numbers once, not per factor: a batch graph has
-        some 10^5 of them, built two or three times per solve)."""
+        """A ``GenericStereoFactor3D`` on ``(X(frame), L(track))`` per row of ``rows``
+        (measurement ``[uL, uR, v]``, the robust or the Gaussian stereo noise), appended to
+        ``graph`` in row order (keys and pixels converted to Python numbers once, not per
+        factor: a batch graph has some 10^5 of them, built two or three times per solve)."""
         factor, point = gtsam.GenericStereoFactor3D, gtsam.StereoPoint2
         noise = self.stereo if robust else self.stereo_gaussian
         calibration, body_P_sensor = self.calibration, self.body_P_sensor

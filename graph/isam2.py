@@ -121,7 +121,6 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     noise = NoiseModels.create(seq, config, settings, motion_covs)
     rows, rejected = usable_rows(seq, config.min_disparity)
     rejected = rejected.astype(np.int64)
-    measured = rows.measured
     frame_ptr = np.searchsorted(rows.frame, np.arange(T + 1))  # rows are sorted by frame
     # interval [k, k+1] without vision: known once frame k+1's observations are in
     gaps = unconstrained_intervals(rows, T) if settings.gap_twist_prior != "off" else np.zeros(max(T - 1, 0), bool)
@@ -205,8 +204,7 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
             initialised[k] += 1
             values.insert(L(j), point[j])
             graph.add(gtsam.PriorFactorPoint3(L(j), point[j], noise.landmark_prior))
-            for r in (first, i):
-                graph.add(noise.stereo_factor(measured[r], rows.frame[r], j))
+            noise.add_stereo_factors(graph, pair)
             used[[first, i]] = True
         build_s += time.perf_counter() - tick
 

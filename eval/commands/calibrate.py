@@ -3,7 +3,7 @@
 EM around the batch smoother (:mod:`graph.identification`): per-axis velocity and gyro noise,
 the stereo pixel noise, the velocity pairing with the largest likelihood, and a constant gyro
 bias when its likelihood ratio passes the BIC, and a radial lens term of the pixels when its
-likelihood ratio passes the BIC (:mod:`graph.radial`; the files carry no distortion
+Wald statistic passes the BIC (:mod:`graph.radial`; the files carry no distortion
 coefficient, so the file's value is none). Prints each value with its standard deviation
 beside the settings it would replace, and writes the model as TOML (``--out``, the ``[model]``
 table every command's ``--config`` reads).
