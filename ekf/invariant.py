@@ -71,7 +71,9 @@ from vislam.ekf.conventions import left_cov_to_estimate
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.numerics import (
     NumericalGuard,
+    Scratch,
     UpdateRejected,
+    add_outer,
     add_pose_rows,
     all_finite,
     batched_inv,
@@ -237,6 +239,7 @@ class _State:
     anchor_p: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     # keep_landmarks: ended tracks' landmarks, as regressions on this state (ekf.retired)
     retired: InvariantRetired | None = None
+    scratch: Scratch = field(default_factory=Scratch)
 
     def world_landmarks(self, slots: np.ndarray, off: int) -> tuple[np.ndarray, np.ndarray]:
         """World means (k, 3) and covariances (k, 3, 3) of ``slots``."""
@@ -371,7 +374,8 @@ def _run(seq: Sequence, config: FilterConfig, progress, guard: NumericalGuard,
 
 def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConfig, off: int) -> bool:
     """Paper eq. 11 in group form: ``T <- T exp(tau u)``; ``P <- P + tau^2 B W B^T`` (the error
-    transition is the identity), plus the bias coupling with a gyro-bias state.
+    transition is the identity), plus the bias coupling with a gyro-bias state. Inverse-depth
+    slots get no noise and no bias coupling: their rows of ``B`` are zero.
 
     Returns False when the noise term is not finite (an absurd but finite twist or time step;
     the caller raises)."""
@@ -379,25 +383,23 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConf
     if st.bias is not None:
         u[3:] -= st.bias
     twist = tau * u
-    if st.lm_id.any():
-        ok = _propagate_groups(st, twist, tau, W_chol, config, off)
-        st.T = st.T @ se3_exp_single(twist)
-        return ok
     B = noise_jacobian(st.T, st.landmarks, twist, st.bias is not None)
-    P = st.P
-    F = None
-    if st.bias is not None:
-        # Imperfect IEKF: the bias error acts as angular-velocity noise -xi_b.
-        F = -tau * B[:, 3:]  # (n, 3)
-        Pb = P[:, B_IDX].copy()
-        Pbb = P[B_IDX, B_IDX].copy()
-        FPb = F @ Pb.T
-        P += FPb + FPb.T + F @ Pbb @ F.T
-        P[B_IDX, B_IDX] += config.gyro_bias_walk**2 * tau * np.eye(3)
+    if st.lm_id.any():
+        B[off:].reshape(-1, 3, 6)[st.lm_id] = 0.0
     BL = tau * (B @ W_chol)
     if not finite_norm2(BL):
         return False
-    P += BL @ BL.T
+    P = st.P
+    F = None
+    if st.bias is not None:
+        # Imperfect IEKF: the bias error acts as angular-velocity noise -xi_b, so with the
+        # bias columns Pb the step adds F Pb^T + Pb F^T + F Pbb F^T, F = -tau B_R: one
+        # product of inner size 6, [F, Pb + F Pbb] [Pb, F]^T.
+        F = -tau * B[:, 3:]  # (n, 3)
+        Pb = P[:, B_IDX].copy()
+        add_outer(P, np.hstack([F, Pb + F @ Pb[B_IDX]]), np.hstack([Pb, F]))
+        P[B_IDX, B_IDX] += config.gyro_bias_walk**2 * tau * np.eye(3)
+    add_outer(P, BL, BL)
     _predict_retired(st, twist, tau, W_chol, config, BL, F)
     st.T = st.T @ se3_exp_single(twist)
     return True
@@ -415,39 +417,6 @@ def _predict_retired(st: _State, twist, tau, W_chol, config, BL, F) -> None:
         walk[B_IDX] = np.sqrt(config.gyro_bias_walk**2 * tau) * np.eye(3)
         N_A = np.concatenate([BL, walk], axis=1)
     st.retired.predict(st.T, twist, tau, W_chol, N_A, F, st.P)
-
-
-def _propagate_groups(st: _State, twist, tau: float, W_chol, config: FilterConfig, off: int) -> bool:
-    """:func:`_propagate`'s covariance step with inverse-depth slots in the state: their rows
-    get no noise and no bias coupling, so only the rows ``g`` of the pose, the bias and the
-    group landmarks change (``B`` is zero elsewhere)."""
-    eu = np.flatnonzero(~st.lm_id)
-    g = np.concatenate([np.arange(off), (off + 3 * eu[:, None] + np.arange(3)).ravel()])
-    B = noise_jacobian(st.T, st.landmarks[eu], twist, st.bias is not None)  # rows g
-    P = st.P
-    gg = np.ix_(g, g)
-    F = None
-    if st.bias is not None:
-        F = -tau * B[:, 3:]
-        Pb = P[:, B_IDX].copy()
-        FPb = F @ Pb.T  # (|g|, n)
-        P[g] += FPb
-        P[:, g] += FPb.T
-        P[gg] += F @ Pb[B_IDX] @ F.T
-        P[B_IDX, B_IDX] += config.gyro_bias_walk**2 * tau * np.eye(3)
-    BL = tau * (B @ W_chol)
-    if not finite_norm2(BL):
-        return False
-    P[gg] += BL @ BL.T
-    if st.retired is not None and st.retired.n:  # rows g of the active state, zero elsewhere
-        BL_all = np.zeros((P.shape[0], 6))
-        BL_all[g] = BL
-        F_all = None
-        if F is not None:
-            F_all = np.zeros((P.shape[0], 3))
-            F_all[g] = F
-        _predict_retired(st, twist, tau, W_chol, config, BL_all, F_all)
-    return True
 
 
 def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterConfig, off: int):
@@ -552,29 +521,36 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
     y = y3.ravel()  # (3k,)
     lflat = li.ravel()
     n = P.shape[0]
-    if has_id:  # P E^T and E P E^T with E's rows [Px_j, I at l_j]
+    # P E^T (n, 3k) and S = E P E^T + Lam^-1 (3k, 3k) in reused memory (Scratch); the
+    # triangular solve below overwrites P E^T with L^-1 E P.
+    PHt = st.scratch.array("PHt", (n, 3 * k))
+    S = st.scratch.array("S", (3 * k, 3 * k))
+    np.take(P, lflat, axis=1, out=PHt, mode="clip")
+    if has_id:  # E's rows [Px_j, I at l_j]
         Px = Px_all.reshape(3 * k, 6)
-        PHt = P.take(lflat, axis=1) + P[:, :6] @ Px.T
-        S = PHt.take(lflat, axis=0) + Px @ PHt[:6]
-    else:
-        PHt = (P.take(lflat, axis=1).reshape(n, k, 3) - P[:, None, :3]).reshape(n, 3 * k)  # P E^T
-        S = (PHt.take(lflat, axis=0).reshape(k, 3, 3 * k) - PHt[None, :3, :]).reshape(3 * k, 3 * k)
+        add_outer(PHt, P[:, :6], Px)
+        np.take(PHt, lflat, axis=0, out=S, mode="clip")
+        add_outer(S, Px, PHt[:6].T)
+    else:  # E's rows [-I at p, 0 at R, I at l_j]
+        PHt.reshape(n, k, 3)[...] -= P[:, None, :3]
+        np.take(PHt, lflat, axis=0, out=S, mode="clip")
+        S.reshape(k, 3, 3 * k)[...] -= PHt[None, :3, :]
     S.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :] += Lam_inv
-    L, info = dpotrf(S, lower=1, clean=0, overwrite_a=1)
+    L, info = dpotrf(S, lower=1, clean=0, overwrite_a=1)  # reads S's lower triangle
     if info != 0:
         raise UpdateRejected(f"innovation covariance of {k} observations not positive definite")
-    Wt = dtrsm(1.0, L, PHt.T, lower=1)  # L^-1 E P, (3k, n)
+    Wt = dtrsm(1.0, L, PHt.T, lower=1, overwrite_b=1)  # L^-1 E P, (3k, n)
     delta = Wt.T @ dtrsm(1.0, L, y[:, None], lower=1)[:, 0]
     # P - K S K^T = P - (L^-1 E P)^T (L^-1 E P); a^T a is computed symmetric (syrk).
-    P_new = P - Wt.T @ Wt
+    KSKt = np.matmul(Wt.T, Wt, out=st.scratch.array("KSKt", (n, n)))
     # Every posterior variance finite and positive (a NaN or inf anywhere in the gain shows on
     # the diagonal, and bounds the off-diagonal terms), and a finite correction.
-    if not (P_new.diagonal().min() > 0 and np.isfinite(delta).all()):
+    if not ((P.diagonal() - KSKt.diagonal()).min() > 0 and np.isfinite(delta).all()):
         raise UpdateRejected(
             f"gain of {k} observations not finite or a variance not positive after it"
         )
+    P -= KSKt
     x_prior = st.landmarks
-    st.P = P_new
     st.T, st.landmarks, st.bias = retract(st.T, st.landmarks, delta, st.bias)
     C_active = None
     if st.lm_id.any():
@@ -644,7 +620,7 @@ def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off
         k = tracks.size
     P = st.P
     n = P.shape[0]
-    Pn = np.empty((n + 3 * k, n + 3 * k))
+    Pn = st.scratch.covariance(P, n + 3 * k)
     Pn[:n, :n] = P
     if inverse_depth:
         Jd = Jd.reshape(3 * k, 6)
@@ -732,7 +708,8 @@ def _marginalise(st: _State, last_frame, t, off, slot_of, done, est: Estimate) -
         rows = off + 3 * gone[:, None] + np.arange(3)
         st.retired.retire(st.P, idx, rows, st.landmarks[gone], st.landmarks[gone], tr,
                           st.lm_id[gone], st.anchor_R[gone], st.anchor_p[gone])
-    st.P = st.P.take(idx, axis=0).take(idx, axis=1)
+    rows = np.take(st.P, idx, axis=0, out=st.scratch.array("rows", (idx.size, st.P.shape[1])), mode="clip")
+    st.P = np.take(rows, idx, axis=1, out=st.scratch.covariance(st.P, idx.size), mode="clip")
     st.landmarks = st.landmarks[keep]
     st.tracks = st.tracks[keep]
     st.lm_id, st.anchor_R, st.anchor_p = st.lm_id[keep], st.anchor_R[keep], st.anchor_p[keep]
