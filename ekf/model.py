@@ -10,7 +10,8 @@ two disagree::
     source = "vislam calibrate 0027.npz"
     velocity_sigma = [0.05, 0.05, 0.05]         # m/s, x y z of the IMU body frame
     gyro_sigma = [0.005, 0.005, 0.005]          # rad/s
-    pixel_sigma = 0.3                           # px, each of uL vL uR vR
+    pixel_sigma = 0.3                           # px, each of uL vL uR vR (white)
+    pixel_correlation_time = 5.3                # frames; absent: errors independent along a track
     gyro_bias = [0.001, -0.002, 0.0005]         # rad/s; absent: the data supports none
     gyro_bias_sigma = [1e-4, 1e-4, 1e-4]        # rad/s (optional, informative)
     radial_k1 = 0.01                            # lens radial term; absent: the data supports none
@@ -42,6 +43,12 @@ errors are :class:`ekf.errors.InputError` naming the file, the table and the key
 named too. ``Model.to_toml()`` writes the small TOML subset needed (numbers with ``repr``
 precision, so a model reads back exactly equal).
 
+Pixel errors correlated along a track. ``pixel_sigma`` is the sigma of one observation's
+error; ``pixel_correlation_time`` (tau >= 1, :mod:`graph.track_correlation`) says how many
+consecutive observations of a track one independent one is worth: a tracker's errors drift
+slowly along a track. The estimators treat observations as independent, so they use the
+error's long-run sigma, ``pixel_sigma * sqrt(tau)`` (:func:`model_config`). Absent: 1.
+
 The radial term. ``radial_k1`` is a lens distortion the file's pixels carry beyond its pinhole
 ``K``: ``x_d = x (1 + k1 r^2)`` in normalised coordinates about the principal point
 (:mod:`ekf.camera`). It is absent when the data support none.
@@ -49,7 +56,7 @@ The radial term. ``radial_k1`` is a lens distortion the file's pixels carry beyo
 Using a model (:func:`apply_model`): the sequence gets the model's ``cam_T_imu``, has the
 model's gyro bias subtracted from its angular velocities and its radial term removed from its
 pixels (:func:`ekf.camera.undistort_pixels`); the config gets the model's velocity
-and gyro sigmas, pixel sigma and velocity pairing. A model with a bias leaves
+and gyro sigmas, long-run pixel sigma and velocity pairing. A model with a bias leaves
 ``config.gyro_bias`` (estimating a residual bias, from zero, with ``gyro_bias_sigma``) as the
 config says; a model saying "no bias" sets ``gyro_bias=False``. Ground truth must be converted
 with the same extrinsic (eval.groundtruth ``GroundTruth.with_extrinsic``).
@@ -93,6 +100,9 @@ MAX_LEVER_ARM = 1e3
 MAX_GYRO_BIAS = 10.0
 #: Largest radial coefficient accepted (normalised coordinates; KITTI's raw lenses: about 0.37).
 MAX_RADIAL_K1 = 1.0
+#: Largest pixel correlation time accepted (frames; graph.track_correlation sums at most 30
+#: lags, so it reports at most 61).
+MAX_PIXEL_CORRELATION_TIME = 1000.0
 #: Longest ``source`` text.
 MAX_SOURCE_CHARS = 10_000
 #: FilterConfig fields a model sets (``gyro_bias`` only when the model says "no bias").
@@ -134,6 +144,10 @@ def _check_sigma3(value: Any) -> tuple[float, float, float]:
 
 def _check_pixel_sigma(value: Any) -> float:
     return FILTER_RULES["pixel_sigma"].check(value)
+
+
+def _check_correlation_time(value: Any) -> float:
+    return Rule("float", 1.0, MAX_PIXEL_CORRELATION_TIME).check(value)
 
 
 def _check_pairing(value: Any) -> str:
@@ -202,6 +216,7 @@ MODEL_CHECKS = {
     "velocity_sigma": _check_sigma3,
     "gyro_sigma": _check_sigma3,
     "pixel_sigma": _check_pixel_sigma,
+    "pixel_correlation_time": _check_correlation_time,
     "gyro_bias": _check_bias,
     "gyro_bias_sigma": _check_bias_sigma,
     "radial_k1": _check_radial,
@@ -269,6 +284,9 @@ class Model:
     radial_k1: float | None = None
     #: Standard deviation of the identified radial term, if known.
     radial_k1_sigma: float | None = None
+    #: Integrated correlation time of the pixel errors along a track (frames, >= 1), or None
+    #: when the data support none (independent errors).
+    pixel_correlation_time: float | None = None
     #: Sigmas of the extrinsic (translation m, then rotation rad), None if not estimated.
     cam_T_imu_sigma: tuple[float, ...] | None = None
     #: Extrinsic components the drive cannot determine (names from EXTRINSIC_COMPONENTS).
@@ -282,7 +300,7 @@ class Model:
         values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                   if f.name != "file"}
         for key in ("gyro_bias", "gyro_bias_sigma", "radial_k1", "radial_k1_sigma",
-                    "cam_T_imu_sigma"):
+                    "pixel_correlation_time", "cam_T_imu_sigma"):
             if values[key] is None:
                 del values[key]
         for name, value in _check_values(values, "model setting").items():
@@ -365,8 +383,9 @@ class Model:
         """The model as TOML text: a ``[model]`` table and, when the file's values are known,
         a ``[file]`` table. Reads back (``from_toml``) exactly equal."""
         lines = [f"{MODEL_FILE_HEADER}, ekf/model.py): noise sigmas per axis x y z",
-                 "# (m/s, rad/s), pixel sigma (px), gyro bias (rad/s, absent: none), radial lens",
-                 "# term (absent: none), velocity pairing, cam_T_imu (rows) and its sigmas",
+                 "# (m/s, rad/s), pixel sigma (px) and its correlation time along a track",
+                 "# (frames, absent: none), gyro bias (rad/s, absent: none), radial lens term",
+                 "# (absent: none), velocity pairing, cam_T_imu (rows) and its sigmas",
                  "# (translation m, then rotation rad).",
                  "[model]"]
         lines += _toml_items(self.to_dict())
@@ -513,7 +532,8 @@ def interval_sigma_factor(pairing: str) -> float:
 def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     """``config`` with the model's noise model: velocity and gyro sigmas per axis (per
     interval: the model's per-sample sigmas times :func:`interval_sigma_factor`, the covariance
-    ``vislam calibrate`` fitted), pixel sigma, velocity pairing; ``gyro_bias=False`` when the
+    ``vislam calibrate`` fitted), the pixel sigma times sqrt of its correlation time along a
+    track (the long-run sigma, module docstring), velocity pairing; ``gyro_bias=False`` when the
     model says the data has no bias (a model with a bias leaves ``gyro_bias`` as the config has
     it: the bias is subtracted from the data by :func:`model_sequence`, and a filter estimating
     one starts from zero)."""
@@ -521,7 +541,7 @@ def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     changes: dict[str, Any] = {
         "velocity_sigma": tuple(f * x for x in model.velocity_sigma),
         "gyro_sigma": tuple(f * x for x in model.gyro_sigma),
-        "pixel_sigma": model.pixel_sigma,
+        "pixel_sigma": model.pixel_sigma * math.sqrt(model.pixel_correlation_time or 1.0),
         "velocity_pairing": model.velocity_pairing,
     }
     if model.gyro_bias is None:

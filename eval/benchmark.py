@@ -709,8 +709,13 @@ def _model_line(model: dict | None) -> str:
     how = {"identified": "identified from the data" + (" (cached)" if model.get("cached") else ""),
            "config": "from " + str(model.get("source", "--config"))}.get(mode, str(mode))
     radial = "" if m.get("radial_k1") is None else f", radial lens term k1 {m['radial_k1']:.3g}"
+    tau = m.get("pixel_correlation_time")
+    correlated = "" if tau is None else (
+        f" correlated along tracks over {tau:.3g} frames (the estimators use "
+        f"{m.get('pixel_sigma', float('nan')) * tau ** 0.5:.3g} px)")
     text = (f"Model {how}: velocity sigma {v} m/s, gyro sigma {g} rad/s, pixel sigma "
-            f"{m.get('pixel_sigma', float('nan')):.3g} px, pairing {m.get('velocity_pairing')}, "
+            f"{m.get('pixel_sigma', float('nan')):.3g} px{correlated}, pairing "
+            f"{m.get('velocity_pairing')}, "
             f"{bias}{radial}")
     test = (model.get("identification") or {}).get("extrinsic_test") or {}
     if test:
@@ -869,19 +874,44 @@ def redraw_noise(truth, sim_config, rng: np.random.Generator) -> Sequence:
     The simulator draws all its streams from one seed (no separate noise seed), so the Monte
     Carlo runs add the noise here: same trajectory, landmarks and tracks in every run. As in the
     simulator, an observation whose noisy disparity falls below ``min_disparity`` is dropped
-    (here the rest of its track is kept).
+    (here the rest of its track is kept). A ``pixel_correlation`` drifts the pixel errors
+    along each track as the simulator does (:func:`eval.simulate.drifting_noise`).
     """
     seq = truth.sequence
     T = seq.n_frames
     u = np.asarray(truth.true_velocities, dtype=float).copy()
     u[:, :3] += sim_config.velocity_sigma * rng.standard_normal((T, 3))
     u[:, 3:] += sim_config.gyro_sigma * rng.standard_normal((T, 3)) + np.asarray(sim_config.gyro_bias)
-    z = seq.obs.z + sim_config.pixel_sigma * rng.standard_normal(seq.obs.z.shape)
+    error = sim_config.pixel_sigma * rng.standard_normal(seq.obs.z.shape)
+    if sim_config.pixel_correlation:
+        error = _drift_along_tracks(error, seq.obs.frame_index, seq.obs.track,
+                                    sim_config.pixel_correlation)
+    z = seq.obs.z + error
     keep = (z[:, 0] - z[:, 2]) >= sim_config.min_disparity
     obs = Observations.from_rows(seq.obs.frame_index[keep], seq.obs.track[keep], z[keep], T)
     return dataclasses.replace(
         seq, linear_velocity=u[:, :3].copy(), angular_velocity=u[:, 3:].copy(), obs=obs
     )
+
+
+def _drift_along_tracks(white: np.ndarray, frame: np.ndarray, track: np.ndarray,
+                        a: float) -> np.ndarray:
+    """Pixel errors (N, 4) drifting along each track (AR(1) with correlation ``a`` between
+    observations of a track in consecutive frames) from white draws ``white``, frame by frame
+    as the simulator makes them."""
+    from vislam.eval.simulate import drifting_noise
+
+    out = np.empty_like(white)
+    track = np.asarray(track, dtype=np.int64)
+    last = np.zeros((int(track.max(initial=-1)) + 1, 4))
+    last_frame = np.full(last.shape[0], -2, dtype=np.int64)
+    order = np.argsort(frame, kind="stable")
+    bounds = np.flatnonzero(np.diff(np.asarray(frame)[order])) + 1
+    for rows in np.split(order, bounds):
+        k, t = int(frame[rows[0]]), track[rows]
+        out[rows] = drifting_noise(white[rows], last[t], last_frame[t] == k - 1, a)
+        last[t], last_frame[t] = out[rows], k
+    return out
 
 
 def landmark_nees_by_source(est: Estimate, truth: np.ndarray) -> np.ndarray:

@@ -49,7 +49,10 @@ Measurements
   real data. Track indices are numbered in order of their first frame.
 * Stereo pixels: ``z = M pi(cam_T_imu @ inv(world_T_imu) @ m)`` (paper eq. 1-3) plus
   ``N(0, pixel_sigma^2)`` on each of uL, vL, uR, vR; an observation whose noisy disparity falls
-  below ``min_disparity`` is dropped and ends its track.
+  below ``min_disparity`` is dropped and ends its track. With ``pixel_correlation`` a the error
+  drifts along a track like a tracker's: AR(1), ``e_k = a e_k-1 + sqrt(1 - a^2) w_k`` from one
+  observation of a track to the next (each still ``N(0, pixel_sigma^2)``; integrated
+  correlation time ``(1 + a) / (1 - a)``, :mod:`graph.track_correlation`).
 
 The file's extrinsic (``file_extrinsic_fault``, ``file_extrinsic_offset``). The data is made
 with the true ``cam_T_imu`` (KITTI_CAM_T_IMU), and the written ground truth is the left
@@ -71,6 +74,7 @@ same, to the byte, as before the options existed.
 from __future__ import annotations
 
 import logging
+import numbers
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -115,6 +119,8 @@ _BORDER_PX = 5.0
 
 #: Longest simulated drive (KITTI's longest sequence has about 4500 frames).
 MAX_SIM_FRAMES = 20000
+#: Upper end (excluded) of ``SimConfig.pixel_correlation``.
+MAX_PIXEL_CORRELATION = 0.99
 #: Upper bounds of the settings: beyond them a drive is no longer KITTI-like, and squares of
 #: the noise levels would overflow.
 _SIM_UPPER_BOUNDS = {
@@ -185,6 +191,9 @@ class SimConfig:
     #: A radial lens term the file's pixels carry beyond its pinhole K (ekf.camera: x_d =
     #: x (1 + k1 r^2)); the image bounds apply to the distorted pixels, the noise is added after.
     radial_k1: float = 0.0
+    #: Correlation of a track's pixel errors from one frame to the next (AR(1), module
+    #: docstring), in [0, 1); 0: independent.
+    pixel_correlation: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2**63:
@@ -232,6 +241,11 @@ class SimConfig:
             value = getattr(self, key)
             if not 0.0 <= value <= 1.0:
                 raise InputError(f"simulation: {key} must be in [0, 1], got {value!r}")
+        a = self.pixel_correlation
+        if isinstance(a, bool) or not isinstance(a, numbers.Real) or not 0.0 <= a < MAX_PIXEL_CORRELATION:
+            raise InputError(f"simulation: pixel_correlation must be a number in [0, "
+                             f"{MAX_PIXEL_CORRELATION:g}], got {a!r}")
+        object.__setattr__(self, "pixel_correlation", float(a))
         if self.mean_track_length < 1:
             raise InputError(
                 f"simulation: mean_track_length must be >= 1, got {self.mean_track_length}"
@@ -353,6 +367,7 @@ def true_model(result: SimResult):
         cam_T_imu=result.cam_T_imu,
         gyro_bias=bias,
         radial_k1=config.radial_k1 or None,
+        pixel_correlation_time=(1.0 + a) / (1.0 - a) if (a := config.pixel_correlation) else None,
         source=f"vislam simulate: the true model of {result.sequence.name} ({seed_text})",
         file={"cam_T_imu": result.sequence.calibration.cam_T_imu},
     )
@@ -461,6 +476,19 @@ def _place_landmarks(
 # --------------------------------------------------------------------------- observations
 
 
+def drifting_noise(white: np.ndarray, previous: np.ndarray, continuing: np.ndarray,
+                   a: float) -> np.ndarray:
+    """One frame's pixel errors (k, 4) from its white draws ``white`` (k, 4, already times
+    pixel_sigma): ``a previous + sqrt(1 - a^2) white`` where a track ``continuing`` from the
+    frame before (its error there ``previous``), ``white`` where a track starts (the AR(1)
+    drift of the module docstring; ``a`` 0: ``white`` itself)."""
+    if not a:
+        return white
+    out = white.copy()
+    out[continuing] = a * previous[continuing] + np.sqrt(1.0 - a * a) * white[continuing]
+    return out
+
+
 def _observe(
     config: SimConfig, rng_tracks, rng_pixels, poses, points, point_arc, calib: Calibration,
     repeat_frames: np.ndarray | None = None,
@@ -479,6 +507,7 @@ def _observe(
     active = np.zeros(n_pts, dtype=bool)
     track_of = np.full(n_pts, -1, dtype=np.int64)
     last_z = np.zeros((n_pts, 4))
+    last_error = np.zeros((n_pts, 4))  # each point's pixel error at its previous observation
     remaining = np.zeros(n_pts, dtype=np.int64)
     track_landmark: list[np.ndarray] = []
     next_id = 0
@@ -513,14 +542,19 @@ def _observe(
         # A track that ends now cannot restart now (ended tracks were active).
         start = ~was_active & visible & (rng_tracks.random(hi - lo) < p_detect)
         local = np.flatnonzero(keep | start)
-        z = z0[local] + sigma * rng_pixels.standard_normal((local.size, 4))
+        error = drifting_noise(sigma * rng_pixels.standard_normal((local.size, 4)),
+                               last_error[lo + local], keep[local], config.pixel_correlation)
+        z = z0[local] + error
         ok = z[:, 0] - z[:, 2] >= config.min_disparity
         local, z = local[ok], z[ok]
         seen = lo + local
+        error = error[ok]
         if repeat_frames is not None and repeat_frames[k]:
             again = keep[local]
             z[again] = last_z[seen[again]]
+            error[again] = last_error[seen[again]]
         last_z[seen] = z
+        last_error[seen] = error
         new = seen[start[local]]
         track_of[new] = next_id + np.arange(new.size)
         remaining[new] = rng_tracks.geometric(p_len, new.size)

@@ -34,6 +34,11 @@ another needs clearly less noise (``PAIRING_MARGIN``). The Laplace approximation
 credits "mean" with its halved variance and ignores the correlation of its intervals, so it
 prefers "mean" on data made with any pairing.
 
+After EM, the pixel errors' correlation along tracks is measured on the final solution's
+residuals (:mod:`graph.track_correlation`): where a tracker's errors drift along a track, the
+model carries their correlation time tau and the estimators use the long-run pixel sigma
+``sigma_px sqrt(tau)``. EM itself fits the white model (the sigma of one observation).
+
 With the "mean" pairing each interval's noise is the mean of two samples: its variance is half
 a sample's. The identified model reports per-sample sigmas (the physical quantity the simulator
 and the data's README speak of); :func:`ekf.model.interval_sigma_factor` converts, and
@@ -131,6 +136,11 @@ class ModelFit:
     radial_k1_std: float | None = None
     #: the radial term against none: estimate, statistic, threshold, decision, profile
     radial_test: dict = field(default_factory=dict)
+    #: the pixel errors' integrated correlation time along a track (graph.track_correlation),
+    #: None when the data support none
+    pixel_correlation_time: float | None = None
+    #: its estimate, lag correlations, statistic, threshold, decision
+    pixel_correlation_test: dict = field(default_factory=dict)
     #: pairing -> sum over the 6 axes of log(per-sample sigma^2) (lower is better: the decision)
     pairing_scores: dict = field(default_factory=dict)
     #: pairing -> Laplace -2 log L under independent intervals (reported; it favours "mean",
@@ -165,6 +175,7 @@ class ModelFit:
             gyro_bias_sigma=None if self.gyro_bias_std is None else tuple(map(float, self.gyro_bias_std)),
             radial_k1=None if self.radial_k1 is None else float(self.radial_k1),
             radial_k1_sigma=None if self.radial_k1 is None else float(self.radial_k1_std),
+            pixel_correlation_time=self.pixel_correlation_time,
             cam_T_imu_sigma=sigma,
             cam_T_imu_undetermined=tuple(n for n in EXTRINSIC_COMPONENTS
                                          if n in self.cam_T_imu_undetermined),
@@ -384,6 +395,7 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     other filter setting; ``settings`` the smoother's."""
     from vislam.graph.radial import radial_profile
     from vislam.graph.smoother import solve_smoother
+    from vislam.graph.track_correlation import solution_track_correlation
 
     t0 = time.perf_counter()
     if seq.n_frames < 3:
@@ -491,6 +503,10 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     if has_bias:  # given the trajectory: a sample's gyro sigma / sqrt(n)
         bias_std = stats.interval_sigma[:3] / f / np.sqrt(max(stats.n_intervals, 1))
 
+    # The pixel errors' correlation along tracks, from the residuals of the final solution:
+    # the estimators then use the long-run pixel sigma (graph.track_correlation).
+    correlation = solution_track_correlation(solution)
+
     interval = stats.interval_sigma
     n = max(stats.n_intervals, 1)
     dof_px = max(stats.n_pixel_dims - stats.pixel_leverage, 1.0)
@@ -521,6 +537,8 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
         radial_test={} if radial_fit is None else {
             "estimate": radial_fit.estimate,
             "std": radial_fit.std if np.isfinite(radial_fit.std) else None, **radial_fit.test},
+        pixel_correlation_time=correlation.time,
+        pixel_correlation_test=correlation.to_dict(),
         pairing_scores=scores,
         pairing_laplace=laplace,
         iterations=total_steps,

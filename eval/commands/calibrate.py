@@ -168,6 +168,9 @@ def report(name: str, frames: int, fit, config) -> str:
         f"| gyro sigma x y z (rad/s) | {_fmt(fit.gyro_sigma)} | {_fmt(fit.gyro_sigma_std, 2)} "
         f"| {_fmt(given_g)} |",
         f"| pixel sigma (px) | {fit.pixel_sigma:.4g} | {fit.pixel_sigma_std:.2g} | {config.pixel_sigma:.4g} |",
+        f"| pixel error correlation time along a track (frames) | "
+        f"{'none' if fit.pixel_correlation_time is None else f'{fit.pixel_correlation_time:.3g}'} "
+        f"| | none |",
         f"| gyro bias x y z (rad/s) | "
         f"{'none' if fit.gyro_bias is None else _fmt(fit.gyro_bias)} | "
         f"{'' if fit.gyro_bias_std is None else _fmt(fit.gyro_bias_std, 2)} | "
@@ -205,6 +208,19 @@ def report(name: str, frames: int, fit, config) -> str:
             f"from the estimate {r['estimate']:.4g}")
         lines.append(f"radial lens term: Wald statistic {r['statistic']:.1f} against "
                      f"{r['threshold']:.2f} ({r['criterion']}): {r['decision']}{size}")
+    c = fit.pixel_correlation_test
+    if c and c.get("lag1") is None:
+        lines.append("pixel errors along a track: too few tracks seen in consecutive frames to "
+                     "measure their correlation (taken as none)")
+    elif c:
+        used = "" if fit.pixel_correlation_time is None else (
+            f"; the estimators use the long-run pixel sigma {fit.pixel_sigma:.3g} x "
+            f"sqrt({fit.pixel_correlation_time:.3g}) = "
+            f"{fit.pixel_sigma * np.sqrt(fit.pixel_correlation_time):.3g} px")
+        lines.append(f"pixel errors along a track: lag-1 correlation {c['lag1']:.3f} over "
+                     f"{c['pairs_lag1']} pairs, statistic {c['statistic']:.1f} against "
+                     f"{c['threshold']:.2f} ({c['criterion']}): {c['decision']}, correlation "
+                     f"time {c['estimate']:.3g} frames ({c['lags_summed']} lags){used}")
     scores = ", ".join(f"{p} {s:.2f}" for p, s in sorted(fit.pairing_scores.items(), key=lambda x: x[1]))
     lines.append(f"velocity pairing: sum of log per-sample variance {scores} (lowest wins)")
     if fit.cam_T_imu_undetermined:

@@ -117,6 +117,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "r^2) in normalised coordinates (default %(default)s: none)",
     )
     parser.add_argument(
+        "--pixel-correlation",
+        type=float,
+        default=d.pixel_correlation,
+        help="correlation of a track's pixel errors from one frame to the next, like a "
+        "tracker's drift: AR(1), in [0, 0.99) (default %(default)s: independent)",
+    )
+    parser.add_argument(
         "--file-extrinsic-offset",
         type=float,
         nargs=6,
@@ -153,6 +160,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         file_extrinsic_offset=tuple(offset) if offset is not None
         else DEFAULT_SIM.file_extrinsic_offset,
         radial_k1=getattr(args, "radial_k1", DEFAULT_SIM.radial_k1),
+        pixel_correlation=getattr(args, "pixel_correlation", DEFAULT_SIM.pixel_correlation),
     )
 
 
