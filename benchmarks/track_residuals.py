@@ -26,6 +26,7 @@ from vislam.eval.datasets import drive_path
 from vislam.graph.factors import stereo_residuals
 from vislam.graph.settings import SmootherSettings
 from vislam.graph.smoother import solve_smoother
+from vislam.graph.track_correlation import lag_pairs
 
 LAGS = (1, 2, 4, 8)
 
@@ -35,16 +36,13 @@ def track_correlations(solution) -> tuple[np.ndarray, dict[int, tuple[int, np.nd
     lag-1 correlation of a solved smoother (:class:`graph.smoother.SmootherSolution`)."""
     rows = solution.problem.rows
     r, _ = stereo_residuals(solution.poses, solution.landmarks, solution.calibration, rows)
-    order = np.lexsort((rows.frame, rows.track))
-    frame, track, res = rows.frame[order], rows.track[order], r[order]
     out, disparity = {}, float("nan")
-    d = res[:, 0] - res[:, 1]
-    for lag in LAGS:
-        same = (track[lag:] == track[:-lag]) & (frame[lag:] == frame[:-lag] + lag)
-        a, b = res[:-lag][same], res[lag:][same]
-        out[lag] = (int(same.sum()), np.array([np.corrcoef(a[:, i], b[:, i])[0, 1] for i in range(3)]))
+    d = r[:, 0] - r[:, 1]
+    for lag, (i, j) in lag_pairs(rows.frame, rows.track, LAGS).items():
+        a, b = r[i], r[j]
+        out[lag] = (int(i.size), np.array([np.corrcoef(a[:, c], b[:, c])[0, 1] for c in range(3)]))
         if lag == 1:
-            disparity = float(np.corrcoef(d[:-1][same], d[1:][same])[0, 1])
+            disparity = float(np.corrcoef(d[i], d[j])[0, 1])
     return r.std(axis=0), out, disparity
 
 

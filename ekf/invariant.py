@@ -708,8 +708,7 @@ def _marginalise(st: _State, last_frame, t, off, slot_of, done, est: Estimate) -
         rows = off + 3 * gone[:, None] + np.arange(3)
         st.retired.retire(st.P, idx, rows, st.landmarks[gone], st.landmarks[gone], tr,
                           st.lm_id[gone], st.anchor_R[gone], st.anchor_p[gone])
-    rows = np.take(st.P, idx, axis=0, out=st.scratch.array("rows", (idx.size, st.P.shape[1])), mode="clip")
-    st.P = np.take(rows, idx, axis=1, out=st.scratch.covariance(st.P, idx.size), mode="clip")
+    st.P = st.scratch.submatrix(st.P, idx)
     st.landmarks = st.landmarks[keep]
     st.tracks = st.tracks[keep]
     st.lm_id, st.anchor_R, st.anchor_p = st.lm_id[keep], st.anchor_R[keep], st.anchor_p[keep]

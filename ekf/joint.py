@@ -407,9 +407,7 @@ class JointState:
             p_a = self.anchor_p[slots] if self.inverse_depth else np.zeros((k, 3))
             self.retired.retire(self.P, ix, self.landmark_rows(slots), self.lm_mean[slots],
                                 self.lm_first[slots], tracks, ids, R_a, p_a)
-        rows = np.take(self.P, ix, axis=0, out=self.scratch.array("rows", (ix.size, self.P.shape[1])),
-                       mode="clip")
-        self.P = np.take(rows, ix, axis=1, out=self.scratch.covariance(self.P, ix.size), mode="clip")
+        self.P = self.scratch.submatrix(self.P, ix)
         self.slot[tracks] = -1
         self.lm_mean = self.lm_mean[keep_lm]
         self.lm_first = self.lm_first[keep_lm]

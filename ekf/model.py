@@ -529,6 +529,12 @@ def interval_sigma_factor(pairing: str) -> float:
     return math.sqrt(0.5) if pairing == "mean" else 1.0
 
 
+def long_run_pixel_sigma(pixel_sigma: float, correlation_time: float | None) -> float:
+    """The pixel sigma the estimators use: ``pixel_sigma * sqrt(tau)`` for errors correlated
+    along a track over ``tau`` frames (module docstring), ``pixel_sigma`` for none."""
+    return pixel_sigma * math.sqrt(correlation_time or 1.0)
+
+
 def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     """``config`` with the model's noise model: velocity and gyro sigmas per axis (per
     interval: the model's per-sample sigmas times :func:`interval_sigma_factor`, the covariance
@@ -541,7 +547,7 @@ def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     changes: dict[str, Any] = {
         "velocity_sigma": tuple(f * x for x in model.velocity_sigma),
         "gyro_sigma": tuple(f * x for x in model.gyro_sigma),
-        "pixel_sigma": model.pixel_sigma * math.sqrt(model.pixel_correlation_time or 1.0),
+        "pixel_sigma": long_run_pixel_sigma(model.pixel_sigma, model.pixel_correlation_time),
         "velocity_pairing": model.velocity_pairing,
     }
     if model.gyro_bias is None:

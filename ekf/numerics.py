@@ -201,6 +201,12 @@ class Scratch:
         name = "P1" if P.base is not None and P.base is self._buffers.get("P0") else "P0"
         return self.array(name, (n, n))
 
+    def submatrix(self, P: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """``P[idx][:, idx]`` as the next state covariance (:meth:`covariance`), through a
+        reused buffer for the rows."""
+        rows = np.take(P, idx, axis=0, out=self.array("rows", (idx.size, P.shape[1])), mode="clip")
+        return np.take(rows, idx, axis=1, out=self.covariance(P, idx.size), mode="clip")
+
 
 def add_outer(P: np.ndarray, U: np.ndarray, W: np.ndarray) -> None:
     """``P += U W^T`` in place (``U``, ``W`` (n, r), small ``r``): one GEMM on ``P``'s memory

@@ -44,6 +44,7 @@ import numpy as np
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.estimate import Estimate
+from vislam.ekf.model import long_run_pixel_sigma
 from vislam.ekf.sequence import Observations, Sequence
 from vislam.eval.consistency import reference_honesty
 from vislam.eval.executors import JobLost, open_executor
@@ -712,7 +713,7 @@ def _model_line(model: dict | None) -> str:
     tau = m.get("pixel_correlation_time")
     correlated = "" if tau is None else (
         f" correlated along tracks over {tau:.3g} frames (the estimators use "
-        f"{m.get('pixel_sigma', float('nan')) * tau ** 0.5:.3g} px)")
+        f"{long_run_pixel_sigma(m.get('pixel_sigma', float('nan')), tau):.3g} px)")
     text = (f"Model {how}: velocity sigma {v} m/s, gyro sigma {g} rad/s, pixel sigma "
             f"{m.get('pixel_sigma', float('nan')):.3g} px{correlated}, pairing "
             f"{m.get('velocity_pairing')}, "

@@ -244,7 +244,7 @@ class SimConfig:
         a = self.pixel_correlation
         if isinstance(a, bool) or not isinstance(a, numbers.Real) or not 0.0 <= a < MAX_PIXEL_CORRELATION:
             raise InputError(f"simulation: pixel_correlation must be a number in [0, "
-                             f"{MAX_PIXEL_CORRELATION:g}], got {a!r}")
+                             f"{MAX_PIXEL_CORRELATION:g}), got {a!r}")
         object.__setattr__(self, "pixel_correlation", float(a))
         if self.mean_track_length < 1:
             raise InputError(

@@ -45,8 +45,8 @@ from vislam.graph.factors import StereoRows
 MAX_LAG = 30
 #: Fewest pairs of observations a lag needs to be summed.
 MIN_PAIRS = 100
-#: Whitening of GTSAM's ``[uL, uR, v]`` residuals: v (the mean of vL and vR) has half the
-#: variance of a pixel.
+#: Whitening of GTSAM's ``[uL, uR, v]`` residuals, up to the pixel sigma: v (the mean of vL
+#: and vR) has half the variance of a pixel.
 _WHITEN = np.array([1.0, 1.0, np.sqrt(2.0)])
 
 
@@ -90,28 +90,37 @@ class TrackCorrelation:
         }
 
 
+def lag_pairs(frame: np.ndarray, track: np.ndarray, lags) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """``{m: (i, j)}``: the row indices of every pair of observations of the same ``track``
+    exactly m ``frame``\\ s apart with every frame between observed too (pairs across a
+    removed observation are left out), for each lag m in ``lags``."""
+    frame, track = np.asarray(frame), np.asarray(track)
+    order = np.lexsort((frame, track))
+    f, t = frame[order], track[order]
+    out = {}
+    for lag in lags:
+        if lag >= f.size:
+            break
+        same = np.flatnonzero((t[lag:] == t[:-lag]) & (f[lag:] == f[:-lag] + lag))
+        out[lag] = (order[same], order[same + lag])
+    return out
+
+
 def along_track_correlation(residuals: np.ndarray, frame: np.ndarray, track: np.ndarray,
                             max_lag: int = MAX_LAG, min_pairs: int = MIN_PAIRS
                             ) -> tuple[np.ndarray, np.ndarray]:
-    """``(rho, pairs)``: the correlation of ``residuals`` (N, d), already whitened, between
-    observations of the same ``track`` exactly m ``frame``\\ s apart with every frame between
-    observed too (pairs across a removed observation are left out), for m = 1, 2, ... while a
-    lag has at least ``min_pairs`` pairs (at most ``max_lag``); pooled over the d components,
-    about a zero mean (a residual's expectation)."""
-    residuals = np.asarray(residuals, dtype=float)
-    order = np.lexsort((frame, track))
-    f, t, r = np.asarray(frame)[order], np.asarray(track)[order], residuals[order]
+    """``(rho, pairs)``: the correlation of ``residuals`` (N, d) between the pairs of
+    :func:`lag_pairs` m frames apart, for m = 1, 2, ... while a lag has at least ``min_pairs``
+    pairs (at most ``max_lag``); pooled over the d components, about a zero mean (a residual's
+    expectation)."""
+    r = np.asarray(residuals, dtype=float)
     variance = float(np.mean(r * r)) if r.size else 0.0
     rho, pairs = [], []
-    for lag in range(1, max_lag + 1):
-        if lag >= f.size:
+    for i, j in lag_pairs(frame, track, range(1, max_lag + 1)).values():
+        if i.size < min_pairs or variance <= 0.0:
             break
-        same = (t[lag:] == t[:-lag]) & (f[lag:] == f[:-lag] + lag)
-        n = int(np.count_nonzero(same))
-        if n < min_pairs or variance <= 0.0:
-            break
-        rho.append(float(np.mean(r[lag:][same] * r[:-lag][same])) / variance)
-        pairs.append(n)
+        rho.append(float(np.mean(r[i] * r[j])) / variance)
+        pairs.append(i.size)
     return np.array(rho), np.array(pairs, dtype=np.int64)
 
 
@@ -122,10 +131,10 @@ def correlation_time(rho: np.ndarray) -> tuple[float, int]:
     return 1.0 + 2.0 * float(np.sum(rho[:lags])), lags
 
 
-def track_correlation(residuals: np.ndarray, rows: StereoRows, pixel_sigma: float) -> TrackCorrelation:
+def track_correlation(residuals: np.ndarray, rows: StereoRows) -> TrackCorrelation:
     """The pixel errors' correlation along tracks from the smoother's residuals ``[uL, uR, v]``
-    (N, 3) of ``rows`` under ``pixel_sigma`` (module docstring)."""
-    white = np.asarray(residuals, dtype=float) * _WHITEN / float(pixel_sigma)
+    (N, 3) of ``rows`` (module docstring); a correlation, so the pixel sigma drops out."""
+    white = np.asarray(residuals, dtype=float) * _WHITEN
     rho, pairs = along_track_correlation(white, rows.frame, rows.track)
     tau, lags = correlation_time(rho)
     n = int(pairs[0]) if pairs.size else 0
@@ -136,14 +145,13 @@ def track_correlation(residuals: np.ndarray, rows: StereoRows, pixel_sigma: floa
 
 def solution_track_correlation(solution) -> TrackCorrelation:
     """:func:`track_correlation` of a solved batch smoother
-    (:class:`graph.smoother.SmootherSolution`) at its own pixel sigma."""
+    (:class:`graph.smoother.SmootherSolution`)."""
     from vislam.graph.factors import stereo_residuals
 
     rows = solution.problem.rows
     residuals, _ = stereo_residuals(solution.poses, solution.landmarks, solution.calibration, rows)
-    sigma = float(solution.noise.stereo_gaussian.sigmas()[0])
-    return track_correlation(residuals, rows, sigma)
+    return track_correlation(residuals, rows)
 
 
-__all__ = ["TrackCorrelation", "along_track_correlation", "correlation_time", "track_correlation",
+__all__ = ["TrackCorrelation", "lag_pairs", "along_track_correlation", "correlation_time", "track_correlation",
            "solution_track_correlation", "MAX_LAG", "MIN_PAIRS"]

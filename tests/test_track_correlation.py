@@ -12,7 +12,7 @@ import pytest
 
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import InputError
-from vislam.ekf.model import Model, model_config
+from vislam.ekf.model import Model, long_run_pixel_sigma, model_config
 from vislam.eval.benchmark import _drift_along_tracks
 from vislam.eval.simulate import DEFAULT_SIM, SimConfig, drifting_noise, simulate
 from vislam.graph.factors import StereoRows
@@ -52,7 +52,7 @@ def test_correlation_time_of_ar1_errors_is_one_plus_a_over_one_minus_a(a):
 def test_white_errors_have_no_correlation_time():
     residuals, frame, track = ar1_tracks(0.0, 3000, 20)
     rows = StereoRows(frame, track, np.zeros((frame.size, 4)))
-    c = track_correlation(residuals, rows, pixel_sigma=1.0)
+    c = track_correlation(residuals, rows)
     assert abs(c.correlation[0]) < 0.02
     assert c.time is None and c.to_dict()["decision"] == "none"
 
@@ -75,7 +75,7 @@ def test_only_observations_of_the_same_track_in_consecutive_frames_pair_up():
     empty, none = along_track_correlation(residuals, frame, track, min_pairs=100)
     assert empty.size == 0 and none.size == 0
     rows = StereoRows(frame, track, np.zeros((6, 4)))
-    c = track_correlation(np.zeros((6, 3)), rows, 1.0)
+    c = track_correlation(np.zeros((6, 3)), rows)
     assert c.time is None and c.to_dict()["lag1"] is None
 
 
@@ -86,6 +86,8 @@ def test_the_model_carries_the_correlation_time_and_the_estimators_use_the_long_
     assert model_config(FilterConfig(), white).pixel_sigma == pytest.approx(0.6)
     drifting = Model(**base, pixel_correlation_time=4.0)
     assert model_config(FilterConfig(), drifting).pixel_sigma == pytest.approx(1.2)
+    assert long_run_pixel_sigma(0.6, 4.0) == pytest.approx(1.2)
+    assert long_run_pixel_sigma(0.6, None) == 0.6
     back = Model.from_toml(drifting.write_toml(tmp_path / "m.toml"))
     assert back == drifting and back.pixel_correlation_time == 4.0
     assert "pixel_correlation_time = 4.0" in drifting.to_toml()

@@ -153,7 +153,7 @@ def _verdict(fit) -> list[str]:
 
 def report(name: str, frames: int, fit, config) -> str:
     """The identified model beside the settings it replaces, and a verdict per quantity."""
-    from vislam.ekf.model import EXTRINSIC_COMPONENTS
+    from vislam.ekf.model import EXTRINSIC_COMPONENTS, long_run_pixel_sigma
     from vislam.graph.extrinsic import lever_arm, lever_arm_covariance
 
     given_v, given_g = config.velocity_sigmas, config.gyro_sigmas
@@ -216,7 +216,7 @@ def report(name: str, frames: int, fit, config) -> str:
         used = "" if fit.pixel_correlation_time is None else (
             f"; the estimators use the long-run pixel sigma {fit.pixel_sigma:.3g} x "
             f"sqrt({fit.pixel_correlation_time:.3g}) = "
-            f"{fit.pixel_sigma * np.sqrt(fit.pixel_correlation_time):.3g} px")
+            f"{long_run_pixel_sigma(fit.pixel_sigma, fit.pixel_correlation_time):.3g} px")
         lines.append(f"pixel errors along a track: lag-1 correlation {c['lag1']:.3f} over "
                      f"{c['pairs_lag1']} pairs, statistic {c['statistic']:.1f} against "
                      f"{c['threshold']:.2f} ({c['criterion']}): {c['decision']}, correlation "
