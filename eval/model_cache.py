@@ -38,7 +38,7 @@ from vislam.graph.settings import SmootherSettings
 log = logging.getLogger(__name__)
 
 #: Changes whenever the identification would give a different answer on the same input.
-IDENTIFICATION_VERSION = "2026-11-26.1"
+IDENTIFICATION_VERSION = "2026-11-27.1"
 
 
 @dataclass

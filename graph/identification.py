@@ -37,7 +37,10 @@ prefers "mean" on data made with any pairing.
 After EM, the pixel errors' correlation along tracks is measured on the final solution's
 residuals (:mod:`graph.track_correlation`): where a tracker's errors drift along a track, the
 model carries their correlation time tau and the estimators use the long-run pixel sigma
-``sigma_px sqrt(tau)``. EM itself fits the white model (the sigma of one observation).
+``sigma_px sqrt(tau)``. EM itself fits the white model to the residuals; the landmark fit keeps
+part of a slow error out of them, so both tau and the sigma of one observation are corrected
+for it (indirect inference on the drive's own tracks, :func:`graph.track_correlation.
+landmark_fit_correction`).
 
 With the "mean" pairing each interval's noise is the mean of two samples: its variance is half
 a sample's. The identified model reports per-sample sigmas (the physical quantity the simulator
@@ -505,7 +508,10 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
 
     # The pixel errors' correlation along tracks, from the residuals of the final solution:
     # the estimators then use the long-run pixel sigma (graph.track_correlation).
+    # The landmark fit keeps part of a slow error out of the residuals, so the errors' own
+    # sigma is EM's white one times the correlation's sigma_factor.
     correlation = solution_track_correlation(solution)
+    pixel_sigma = stats.pixel_sigma * correlation.sigma_factor
 
     interval = stats.interval_sigma
     n = max(stats.n_intervals, 1)
@@ -514,10 +520,10 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     return ModelFit(
         velocity_sigma=interval[3:] / f,
         gyro_sigma=interval[:3] / f,
-        pixel_sigma=stats.pixel_sigma,
+        pixel_sigma=pixel_sigma,
         velocity_sigma_std=interval[3:] / f / np.sqrt(2.0 * n),
         gyro_sigma_std=interval[:3] / f / np.sqrt(2.0 * n),
-        pixel_sigma_std=stats.pixel_sigma / float(np.sqrt(2.0 * dof_px)),
+        pixel_sigma_std=pixel_sigma / float(np.sqrt(2.0 * dof_px)),
         pairing=best,
         gyro_bias=bias,
         gyro_bias_std=bias_std,
@@ -538,7 +544,7 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
             "estimate": radial_fit.estimate,
             "std": radial_fit.std if np.isfinite(radial_fit.std) else None, **radial_fit.test},
         pixel_correlation_time=correlation.time,
-        pixel_correlation_test=correlation.to_dict(),
+        pixel_correlation_test={**correlation.to_dict(), "white_sigma": stats.pixel_sigma},
         pairing_scores=scores,
         pairing_laplace=laplace,
         iterations=total_steps,

@@ -217,10 +217,15 @@ def report(name: str, frames: int, fit, config) -> str:
             f"; the estimators use the long-run pixel sigma {fit.pixel_sigma:.3g} x "
             f"sqrt({fit.pixel_correlation_time:.3g}) = "
             f"{long_run_pixel_sigma(fit.pixel_sigma, fit.pixel_correlation_time):.3g} px")
+        corrected = "" if c.get("corrected") is None or fit.pixel_correlation_time is None else (
+            f"; corrected for the landmark fit (which keeps part of a slow error out of the "
+            f"residuals): {c['corrected']:.3g} frames, pixel sigma {c['white_sigma']:.3g} / "
+            f"sqrt({c['variance_ratio']:.3g}) = {fit.pixel_sigma:.3g} px")
         lines.append(f"pixel errors along a track: lag-1 correlation {c['lag1']:.3f} over "
                      f"{c['pairs_lag1']} pairs, statistic {c['statistic']:.1f} against "
-                     f"{c['threshold']:.2f} ({c['criterion']}): {c['decision']}, correlation "
-                     f"time {c['estimate']:.3g} frames ({c['lags_summed']} lags){used}")
+                     f"{c['threshold']:.2f} ({c['criterion']}): {c['decision']}, the residuals' "
+                     f"correlation time {c['estimate']:.3g} frames ({c['lags_summed']} lags)"
+                     f"{corrected}{used}")
     scores = ", ".join(f"{p} {s:.2f}" for p, s in sorted(fit.pairing_scores.items(), key=lambda x: x[1]))
     lines.append(f"velocity pairing: sum of log per-sample variance {scores} (lowest wins)")
     if fit.cam_T_imu_undetermined:
