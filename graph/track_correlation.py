@@ -270,6 +270,9 @@ def landmark_fit_correction(tau_r: float, rows: StereoRows, jacobians: np.ndarra
     ``tau_r`` after the landmark fit (indirect inference over :data:`CORRECTION_GRID`, the
     drive's own tracks and landmark Jacobians, AR(1) errors from seed :data:`SIMULATION_SEED`;
     module docstring), the residuals' variance over the errors' there, and the lookup."""
+    finite = np.isfinite(jacobians).all(axis=(1, 2))
+    if not finite.all():  # a row without a usable Jacobian (a point at infinity) is left out
+        rows, jacobians = rows.subset(finite), jacobians[finite]
     rng = np.random.default_rng(SIMULATION_SEED)
     replicates = int(np.clip(np.ceil(SIMULATION_ROWS / max(len(rows), 1)), 1, 8))
     draws = [rng.standard_normal((len(rows), 3)) for _ in range(replicates)]

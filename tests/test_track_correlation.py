@@ -146,6 +146,11 @@ def test_the_landmark_fit_correction_recovers_the_errors_correlation_time_and_si
     n_tracks = np.unique(rows.track).size
     assert c.variance_ratio == pytest.approx(np.sum(r * r) / (r.size - 3 * n_tracks), rel=0.05)
     assert c.sigma_factor == pytest.approx(1.0 / math.sqrt(c.variance_ratio))
+    # a row without a finite Jacobian (a point at infinity) is left out of the simulation
+    J_bad = J.copy()
+    J_bad[::50] = np.nan
+    c_bad = track_correlation(residuals, rows, J_bad)
+    assert np.isfinite(c_bad.time) and c_bad.time == pytest.approx(c.time, rel=0.05)
     # white errors: nothing to correct, none kept
     w = without_landmark_fit(white, J, rows.track) / np.array([1.0, 1.0, math.sqrt(2.0)])
     none = track_correlation(w, rows, J)
