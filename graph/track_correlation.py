@@ -152,16 +152,19 @@ def lag_pairs(frame: np.ndarray, track: np.ndarray, lags) -> dict[int, tuple[np.
 
 
 def along_track_correlation(residuals: np.ndarray, frame: np.ndarray, track: np.ndarray,
-                            max_lag: int = MAX_LAG, min_pairs: int = MIN_PAIRS
-                            ) -> tuple[np.ndarray, np.ndarray]:
+                            max_lag: int = MAX_LAG, min_pairs: int = MIN_PAIRS, *,
+                            pairs_by_lag: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(rho, pairs)``: the correlation of ``residuals`` (N, d) between the pairs of
     :func:`lag_pairs` m frames apart, for m = 1, 2, ... while a lag has at least ``min_pairs``
     pairs (at most ``max_lag``); pooled over the d components, about a zero mean (a residual's
-    expectation)."""
+    expectation). ``pairs_by_lag``: :func:`lag_pairs` of ``frame`` and ``track`` for lags
+    1..max_lag, when the caller has them already."""
     r = np.asarray(residuals, dtype=float)
     variance = float(np.mean(r * r)) if r.size else 0.0
+    if pairs_by_lag is None:
+        pairs_by_lag = lag_pairs(frame, track, range(1, max_lag + 1))
     rho, pairs = [], []
-    for i, j in lag_pairs(frame, track, range(1, max_lag + 1)).values():
+    for i, j in pairs_by_lag.values():
         if i.size < min_pairs or variance <= 0.0:
             break
         rho.append(float(np.mean(r[i] * r[j])) / variance)
@@ -237,36 +240,66 @@ def ar1_along_tracks(frame: np.ndarray, track: np.ndarray, a: float, white: np.n
     return out
 
 
-def without_landmark_fit(errors: np.ndarray, jacobians: np.ndarray, track: np.ndarray) -> np.ndarray:
-    """``errors`` (N, 3, whitened) less their least-squares fit by each track's landmark
-    (``jacobians`` from :func:`landmark_jacobians`): the residuals they would leave."""
+def landmark_normal_matrices(jacobians: np.ndarray, track: np.ndarray) -> np.ndarray:
+    """Each track's normal matrix ``sum J^T J`` (max track + 1, 3, 3) of its landmark's
+    least-squares fit (``jacobians`` from :func:`landmark_jacobians`), with a ridge of 1e-12 of
+    its trace so that a track never observed stays solvable."""
     n = int(track.max()) + 1 if track.size else 0
     JtJ = np.einsum("nki,nkj->nij", jacobians, jacobians)
-    Jte = np.einsum("nki,nk->ni", jacobians, errors)
     A = np.zeros((n, 9))
-    b = np.zeros((n, 3))
     for c in range(9):
         A[:, c] = np.bincount(track, JtJ.reshape(-1, 9)[:, c], minlength=n)
-    for c in range(3):
-        b[:, c] = np.bincount(track, Jte[:, c], minlength=n)
     A = A.reshape(n, 3, 3)
     A += np.eye(3) * (1e-12 * np.trace(A, axis1=1, axis2=2)[:, None, None] + 1e-300)
-    x = np.linalg.solve(A, b[..., None])[..., 0]
+    return A
+
+
+def without_landmark_fit(errors: np.ndarray, jacobians: np.ndarray, track: np.ndarray,
+                         normal: np.ndarray | None = None) -> np.ndarray:
+    """``errors`` (N, 3, whitened) less their least-squares fit by each track's landmark
+    (``jacobians`` from :func:`landmark_jacobians`; ``normal`` their
+    :func:`landmark_normal_matrices`, when the caller has them): the residuals they would
+    leave."""
+    if normal is None:
+        normal = landmark_normal_matrices(jacobians, track)
+    n = normal.shape[0]
+    Jte = np.einsum("nki,nk->ni", jacobians, errors)
+    b = np.zeros((n, 3))
+    for c in range(3):
+        b[:, c] = np.bincount(track, Jte[:, c], minlength=n)
+    x = np.linalg.solve(normal, b[..., None])[..., 0]
     return errors - np.einsum("nki,ni->nk", jacobians, x[track])
 
 
-def residual_correlation_time(tau: float, rows: StereoRows, jacobians: np.ndarray,
-                              white: np.ndarray) -> tuple[float, float]:
+@dataclass(frozen=True)
+class LandmarkFit:
+    """What every trial of :func:`landmark_fit_correction` shares: the rows, their landmark
+    Jacobians, the tracks' normal matrices, the lag pairs and the number of tracks."""
+
+    rows: StereoRows
+    jacobians: np.ndarray
+    normal: np.ndarray
+    pairs_by_lag: dict
+    n_tracks: int
+
+    @classmethod
+    def of(cls, rows: StereoRows, jacobians: np.ndarray) -> "LandmarkFit":
+        return cls(rows, jacobians, landmark_normal_matrices(jacobians, rows.track),
+                   lag_pairs(rows.frame, rows.track, range(1, MAX_LAG + 1)),
+                   int(np.unique(rows.track).size))
+
+
+def residual_correlation_time(tau: float, fit: LandmarkFit, white: np.ndarray) -> tuple[float, float]:
     """``(tau_r, ratio)``: what :func:`track_correlation` finds in the residuals of AR(1) errors
     with correlation time ``tau`` (built from the standard normal draws ``white``, N x 3) once
-    each track's landmark is fitted to them, and the residuals' variance over the errors' (per
-    degree of freedom the landmarks leave)."""
+    each track's landmark (``fit``) is fitted to them, and the residuals' variance over the
+    errors' (per degree of freedom the landmarks leave)."""
     a = (tau - 1.0) / (tau + 1.0)
-    r = without_landmark_fit(ar1_along_tracks(rows.frame, rows.track, a, white), jacobians,
-                             rows.track)
-    rho, _ = along_track_correlation(r, rows.frame, rows.track)
-    n_tracks = np.unique(rows.track).size
-    ratio = float(np.sum(r * r)) / max(r.size - 3 * n_tracks, 1)
+    rows = fit.rows
+    r = without_landmark_fit(ar1_along_tracks(rows.frame, rows.track, a, white), fit.jacobians,
+                             rows.track, fit.normal)
+    rho, _ = along_track_correlation(r, rows.frame, rows.track, pairs_by_lag=fit.pairs_by_lag)
+    ratio = float(np.sum(r * r)) / max(r.size - 3 * fit.n_tracks, 1)
     return correlation_time(rho)[0], ratio
 
 
@@ -278,12 +311,13 @@ def landmark_fit_correction(tau_r: float, rows: StereoRows, jacobians: np.ndarra
     finite = np.isfinite(jacobians).all(axis=(1, 2))
     if not finite.all():  # a row without a usable Jacobian (a point at infinity) is left out
         rows, jacobians = rows.subset(finite), jacobians[finite]
+    fit = LandmarkFit.of(rows, jacobians)  # the same for every trial
     rng = np.random.default_rng(SIMULATION_SEED)
     replicates = int(np.clip(np.ceil(SIMULATION_ROWS / max(len(rows), 1)), 1, 8))
     draws = [rng.standard_normal((len(rows), 3)) for _ in range(replicates)]
     seen, ratios = [], []
     for tau in CORRECTION_GRID:
-        runs = [residual_correlation_time(float(tau), rows, jacobians, w) for w in draws]
+        runs = [residual_correlation_time(float(tau), fit, w) for w in draws]
         seen.append(np.mean([x[0] for x in runs]))
         ratios.append(np.mean([x[1] for x in runs]))
     seen = np.maximum.accumulate(np.asarray(seen))  # the residuals' tau rises with the errors'
@@ -306,5 +340,6 @@ def solution_track_correlation(solution) -> TrackCorrelation:
 
 __all__ = ["TrackCorrelation", "lag_pairs", "along_track_correlation", "correlation_time",
            "track_correlation", "solution_track_correlation", "landmark_jacobians",
-           "ar1_along_tracks", "without_landmark_fit", "residual_correlation_time",
+           "ar1_along_tracks", "landmark_normal_matrices", "without_landmark_fit",
+           "LandmarkFit", "residual_correlation_time",
            "landmark_fit_correction", "CORRECTION_GRID", "MAX_LAG", "MIN_PAIRS"]
