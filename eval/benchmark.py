@@ -234,10 +234,36 @@ def apply_model_to(sequences: list[BenchSequence], model, config: FilterConfig |
                  "ground_truth_extrinsic": (f"the model's ({mode})" if converted else
                                             "none needed (truth in the IMU frame)" if gt is not None
                                             else None)}
+        seq = model_sequence(bs.sequence, model)
+        if converted:
+            entry["lever_arm"] = _lever_arm_record(gt, seq, model)
         out.append(dataclasses.replace(
-            bs, sequence=model_sequence(bs.sequence, model), gt=gt, model=entry,
+            bs, sequence=seq, gt=gt, model=entry,
             config=None if config is None else model_config(config, model)))
     return out
+
+
+def _lever_arm_record(gt, seq: Sequence, model) -> dict:
+    """The model's lever arm beside the one the ground truth and the velocities agree on
+    (:mod:`eval.lever_arm_truth`), IMU axes, m; the latter None where the truth is too short."""
+    from vislam.eval.lever_arm_truth import lever_arm_from_truth
+    from vislam.graph.extrinsic import lever_arm
+
+    record = {"model": lever_arm(model.cam_T_imu).tolist(), "ground_truth": None,
+              "ground_truth_sigma": None,
+              "definition": "the camera's position from the point the velocities are of, IMU "
+                            "axes (m); ground_truth: least squares of the ground-truth camera "
+                            "motion against the velocities (eval.lever_arm_truth), block-"
+                            "jackknife sigma"}
+    try:
+        fit = lever_arm_from_truth(gt.camera_poses, seq.velocities, seq.dt,
+                                   np.asarray(model.cam_T_imu)[:3, :3], model.velocity_pairing)
+    except InputError as exc:
+        record["ground_truth_error"] = str(exc)
+        return record
+    record["ground_truth"] = fit.lever_arm.tolist()
+    record["ground_truth_sigma"] = fit.sigma.tolist()
+    return record
 
 
 def as_given(sequences: list[BenchSequence]) -> list[BenchSequence]:
@@ -724,6 +750,12 @@ def _model_line(model: dict | None) -> str:
                    if "threshold" in test else "")
         text += (f"; extrinsic: {test['decision']} (Wald statistic {test['statistic']:.3g} on "
                  f"{test['dof']} dof{against})")
+    arm = model.get("lever_arm") or {}
+    if arm.get("ground_truth") is not None:
+        model_p, truth_p, truth_s = (" ".join(f"{x:.2f}" for x in arm[k])
+                                     for k in ("model", "ground_truth", "ground_truth_sigma"))
+        text += (f"; lever arm x y z {model_p} m, the ground truth's {truth_p} +- {truth_s} m "
+                 "(from the velocities against the true camera motion, no vision)")
     return text + "."
 
 

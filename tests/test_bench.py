@@ -331,3 +331,33 @@ def test_model_cache_key_ignores_what_identification_overrides():
     assert cache_key(seq, FilterConfig(), SmootherSettings(rejection_relative_error_tol=0.5),
                      ("mean",)) == base
     assert cache_key(seq, FilterConfig(), SmootherSettings(huber_k=2.0), ("mean",)) != base
+
+
+def test_a_model_on_a_drive_with_ground_truth_records_the_truths_lever_arm(tmp_path):
+    """Where the ground truth has camera poses, results.json puts the model's lever arm beside
+    the one the truth and the velocities agree on (eval.lever_arm_truth), and summary.md
+    says both; the file's wrong extrinsic (the KITTI fault) does not enter it."""
+    from vislam.ekf.model import Model
+    from vislam.eval.simulate import SimConfig, simulate, write_simulation
+    from vislam.graph.extrinsic import lever_arm
+
+    result = simulate(SimConfig(seed=3, n_frames=120, name="arm", velocity_sigma=0.05,
+                                file_extrinsic_fault="kitti"))
+    paths = write_simulation(result, tmp_path)
+    (bs,) = benchmark.collect_sequences([str(paths["data"])])
+    model = Model(velocity_sigma=(0.05,) * 3, gyro_sigma=(0.05,) * 3, pixel_sigma=1.0,
+                  velocity_pairing="mean", cam_T_imu=result.cam_T_imu)
+    (done,) = benchmark.apply_model_to([bs], model, FilterConfig(), "config")
+    arm = done.model["lever_arm"]
+    true = lever_arm(result.cam_T_imu)
+    np.testing.assert_allclose(arm["model"], true)
+    z = (np.array(arm["ground_truth"]) - true) / np.array(arm["ground_truth_sigma"])
+    assert np.all(np.abs(z[:2]) < 3), arm
+    line = benchmark._model_line(done.model)
+    assert "the ground truth's" in line and "no vision" in line
+    short = benchmark.collect_sequences([str(write_simulation(
+        simulate(SimConfig(seed=3, n_frames=12, name="short")), tmp_path / "s")["data"])])
+    (done,) = benchmark.apply_model_to(short, model, FilterConfig(), "config")
+    assert done.model["lever_arm"]["ground_truth"] is None
+    assert "usable intervals" in done.model["lever_arm"]["ground_truth_error"]
+    assert "the ground truth's" not in benchmark._model_line(done.model)
