@@ -27,17 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from vislam.ekf.config import FilterConfig
-from vislam.eval.datasets import data_dir_2019, drive_path
+from vislam.eval.datasets import KITTI_CAM_T_IMU_TRANSLATION, data_dir_2019, drive_path
 from vislam.eval.groundtruth import find_ground_truth
 from vislam.eval.lever_arm_truth import lever_arm_from_truth
 from vislam.eval.loader import load_sequence
 from vislam.eval.model_cache import identified_model
 from vislam.graph.extrinsic import lever_arm, lever_arm_covariance
 from vislam.graph.settings import SmootherSettings
-
-#: KITTI's calibration of 2011_09_30 (calib_imu_to_velo then calib_velo_to_cam): the translation
-#: of cam_T_imu, m (../shared/data/kitti-pr3/README.md).
-KITTI_TRANSLATION = np.array([-0.332, 0.727, -1.138])
 
 
 def _row(name: str, p: np.ndarray, sigma: np.ndarray | None) -> str:
@@ -59,7 +55,7 @@ def main() -> None:
         found = identified_model(seq, FilterConfig(), SmootherSettings())
         model = found.model
         R = seq.calibration.cam_T_imu[:3, :3]
-        kitti = -R.T @ KITTI_TRANSLATION
+        kitti = -R.T @ np.asarray(KITTI_CAM_T_IMU_TRANSLATION)
         fit = lever_arm_from_truth(gt.camera_poses, seq.velocities, seq.dt, R, model.velocity_pairing)
         ident = lever_arm(model.cam_T_imu)
         ident_sigma = None

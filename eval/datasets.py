@@ -16,6 +16,10 @@ DATA_ENV = "VISLAM_DATA"
 DATA_2019_ENV = "VISLAM_DATA_2019"
 #: The drives shared with the project (file stems), in the paper's order.
 SHARED_DRIVES = ("0022", "0027", "0034")
+#: The translation of cam_T_imu (m) from KITTI's own calibration of 2011_09_30 (calib_imu_to_velo
+#: then calib_velo_to_cam), the drives' date; the files carry the lever arm there instead
+#: (../shared/data/kitti-pr3/README.md). A reference, not a setting: no estimator reads it.
+KITTI_CAM_T_IMU_TRANSLATION = (-0.332, 0.727, -1.138)
 
 
 def repo_root() -> Path:

@@ -90,10 +90,10 @@ def lever_arm_from_truth(camera_poses: np.ndarray, velocities: np.ndarray, tau: 
     if n < 2 * blocks:
         raise InputError(f"ground truth: {n} usable intervals, need at least {2 * blocks} for "
                          "a lever arm with a standard deviation")
-    p = _solve(A, b)
     if np.linalg.matrix_rank(A.reshape(-1, 3)) < 3:
         raise InputError("ground truth: the drive does not rotate about enough axes to "
                          "determine a lever arm")
+    p = _solve(A, b)
     edges = np.linspace(0, n, blocks + 1).astype(int)
     keep = np.ones(n, dtype=bool)
     leave_out = []

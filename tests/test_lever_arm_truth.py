@@ -8,14 +8,11 @@ import numpy as np
 import pytest
 
 from vislam.ekf.errors import InputError
+from vislam.eval.datasets import KITTI_CAM_T_IMU_TRANSLATION
 from vislam.eval.groundtruth import imu_to_camera_poses
 from vislam.eval.lever_arm_truth import lever_arm_equation, lever_arm_from_truth
 from vislam.eval.simulate import DEFAULT_SIM, simulate
 from vislam.graph.extrinsic import lever_arm
-
-#: KITTI's own calibration of 2011_09_30 (calib_imu_to_velo, then calib_velo_to_cam): the
-#: translation of cam_T_imu (../shared/data/kitti-pr3/README.md).
-KITTI_TRANSLATION = np.array([-0.332, 0.727, -1.138])
 
 
 def _fit(result, pairing="mean", **kw):
@@ -108,7 +105,7 @@ def test_kitti_0027_velocities_are_not_of_kittis_imu_origin(drive_path):
         seq = load_sequence(path)
         gt = find_ground_truth(path)
         R = seq.calibration.cam_T_imu[:3, :3]
-        kitti = -R.T @ KITTI_TRANSLATION
+        kitti = -R.T @ np.asarray(KITTI_CAM_T_IMU_TRANSLATION)
         fit = lever_arm_from_truth(gt.camera_poses, seq.velocities, seq.dt, R, pairing)
         assert 0.65 < fit.lever_arm[0] < 0.9, (path, fit.lever_arm)
         assert abs(fit.lever_arm[1] - kitti[1]) < 0.1, (path, fit.lever_arm)
