@@ -12,6 +12,8 @@ two disagree::
     gyro_sigma = [0.005, 0.005, 0.005]          # rad/s
     pixel_sigma = 0.3                           # px, each of uL vL uR vR (white)
     pixel_correlation_time = 5.3                # frames; absent: errors independent along a track
+    velocity_correlation_time = [1.0, 30.0, 8.0]  # frames, x y z; absent: white velocity errors
+    gyro_correlation_time = [1.0, 1.0, 1.0]       # frames, x y z; absent: white gyro errors
     gyro_bias = [0.001, -0.002, 0.0005]         # rad/s; absent: the data supports none
     gyro_bias_sigma = [1e-4, 1e-4, 1e-4]        # rad/s (optional, informative)
     radial_k1 = 0.01                            # lens radial term; absent: the data supports none
@@ -48,6 +50,13 @@ error; ``pixel_correlation_time`` (tau >= 1, :mod:`graph.track_correlation`) say
 consecutive observations of a track one independent one is worth: a tracker's errors drift
 slowly along a track. The estimators treat observations as independent, so they use the
 error's long-run sigma, ``pixel_sigma * sqrt(tau)`` (:func:`model_config`). Absent: 1.
+
+Velocity and gyro errors correlated in time. ``velocity_sigma`` and ``gyro_sigma`` are the
+white sigmas of one sample; ``velocity_correlation_time`` and ``gyro_correlation_time`` (per
+axis, >= 1, :mod:`graph.motion_correlation`) the long-run variance of an interval's twist noise
+over its white variance: a velocity source's errors drift slowly, and a drive's drift is built
+from their slow part. The estimators treat intervals as independent, so they use the long-run
+interval sigma, the interval sigma times ``sqrt(tau)`` (:func:`model_config`). Absent: 1.
 
 The radial term. ``radial_k1`` is a lens distortion the file's pixels carry beyond its pinhole
 ``K``: ``x_d = x (1 + k1 r^2)`` in normalised coordinates about the principal point
@@ -103,6 +112,9 @@ MAX_RADIAL_K1 = 1.0
 #: Largest pixel correlation time accepted (frames; graph.track_correlation sums at most 30
 #: lags, so it reports at most 61).
 MAX_PIXEL_CORRELATION_TIME = 1000.0
+#: Largest velocity or gyro correlation time accepted (frames: the long-run variance over the
+#: white interval variance, graph.motion_correlation).
+MAX_MOTION_CORRELATION_TIME = 1e6
 #: Longest ``source`` text.
 MAX_SOURCE_CHARS = 10_000
 #: FilterConfig fields a model sets (``gyro_bias`` only when the model says "no bias").
@@ -148,6 +160,11 @@ def _check_pixel_sigma(value: Any) -> float:
 
 def _check_correlation_time(value: Any) -> float:
     return Rule("float", 1.0, MAX_PIXEL_CORRELATION_TIME).check(value)
+
+
+def _check_motion_correlation_time(value: Any) -> tuple[float, float, float]:
+    return _vector(value, Rule("float", 1.0, MAX_MOTION_CORRELATION_TIME), 3,
+                   f"an array of 3 numbers from 1 to {MAX_MOTION_CORRELATION_TIME:g} (frames, x y z)")
 
 
 def _check_pairing(value: Any) -> str:
@@ -217,6 +234,8 @@ MODEL_CHECKS = {
     "gyro_sigma": _check_sigma3,
     "pixel_sigma": _check_pixel_sigma,
     "pixel_correlation_time": _check_correlation_time,
+    "velocity_correlation_time": _check_motion_correlation_time,
+    "gyro_correlation_time": _check_motion_correlation_time,
     "gyro_bias": _check_bias,
     "gyro_bias_sigma": _check_bias_sigma,
     "radial_k1": _check_radial,
@@ -287,6 +306,11 @@ class Model:
     #: Integrated correlation time of the pixel errors along a track (frames, >= 1), or None
     #: when the data support none (independent errors).
     pixel_correlation_time: float | None = None
+    #: Long-run over white variance of the interval's velocity noise per axis (frames, >= 1,
+    #: :mod:`graph.motion_correlation`), or None when the data support none.
+    velocity_correlation_time: tuple[float, float, float] | None = None
+    #: The same for the gyro noise.
+    gyro_correlation_time: tuple[float, float, float] | None = None
     #: Sigmas of the extrinsic (translation m, then rotation rad), None if not estimated.
     cam_T_imu_sigma: tuple[float, ...] | None = None
     #: Extrinsic components the drive cannot determine (names from EXTRINSIC_COMPONENTS).
@@ -300,7 +324,8 @@ class Model:
         values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                   if f.name != "file"}
         for key in ("gyro_bias", "gyro_bias_sigma", "radial_k1", "radial_k1_sigma",
-                    "pixel_correlation_time", "cam_T_imu_sigma"):
+                    "pixel_correlation_time", "velocity_correlation_time",
+                    "gyro_correlation_time", "cam_T_imu_sigma"):
             if values[key] is None:
                 del values[key]
         for name, value in _check_values(values, "model setting").items():
@@ -383,7 +408,8 @@ class Model:
         """The model as TOML text: a ``[model]`` table and, when the file's values are known,
         a ``[file]`` table. Reads back (``from_toml``) exactly equal."""
         lines = [f"{MODEL_FILE_HEADER}, ekf/model.py): noise sigmas per axis x y z",
-                 "# (m/s, rad/s), pixel sigma (px) and its correlation time along a track",
+                 "# (m/s, rad/s) and their correlation times (frames, absent: none), pixel",
+                 "# sigma (px) and its correlation time along a track",
                  "# (frames, absent: none), gyro bias (rad/s, absent: none), radial lens term",
                  "# (absent: none), velocity pairing, cam_T_imu (rows) and its sigmas",
                  "# (translation m, then rotation rad).",
@@ -538,15 +564,18 @@ def long_run_pixel_sigma(pixel_sigma: float, correlation_time: float | None) -> 
 def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     """``config`` with the model's noise model: velocity and gyro sigmas per axis (per
     interval: the model's per-sample sigmas times :func:`interval_sigma_factor`, the covariance
-    ``vislam calibrate`` fitted), the pixel sigma times sqrt of its correlation time along a
+    ``vislam calibrate`` fitted, times sqrt of the velocity's and gyro's correlation times: the
+    long-run interval sigma, module docstring), the pixel sigma times sqrt of its correlation time along a
     track (the long-run sigma, module docstring), velocity pairing; ``gyro_bias=False`` when the
     model says the data has no bias (a model with a bias leaves ``gyro_bias`` as the config has
     it: the bias is subtracted from the data by :func:`model_sequence`, and a filter estimating
     one starts from zero)."""
     f = interval_sigma_factor(model.velocity_pairing)
+    v_time = model.velocity_correlation_time or (1.0, 1.0, 1.0)
+    g_time = model.gyro_correlation_time or (1.0, 1.0, 1.0)
     changes: dict[str, Any] = {
-        "velocity_sigma": tuple(f * x for x in model.velocity_sigma),
-        "gyro_sigma": tuple(f * x for x in model.gyro_sigma),
+        "velocity_sigma": tuple(f * x * math.sqrt(t) for x, t in zip(model.velocity_sigma, v_time)),
+        "gyro_sigma": tuple(f * x * math.sqrt(t) for x, t in zip(model.gyro_sigma, g_time)),
         "pixel_sigma": long_run_pixel_sigma(model.pixel_sigma, model.pixel_correlation_time),
         "velocity_pairing": model.velocity_pairing,
     }
