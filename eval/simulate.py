@@ -37,6 +37,10 @@ Measurements
 * Velocities: the samples above ``+ N(0, diag(velocity_sigma^2, gyro_sigma^2))`` (one sigma
   for every axis, or three: x, y, z of the IMU body frame) plus a constant gyro bias on the
   angular part.
+  With ``velocity_correlation`` a the linear-velocity errors drift like a vehicle's velocity
+  source: AR(1) from one sample to the next (each still ``N(0, velocity_sigma^2)``); the true
+  model then carries the interval noise's long-run over white variance
+  (``velocity_correlation_time``, :mod:`graph.motion_correlation`).
 * Landmarks stand on both sides of the path (lateral offset 4-20 m, 0-10 m above the road,
   i.e. about -1.7..8.4 m relative to the camera), plus a share of far points (lateral 20-50 m,
   0-20 m above the road) and a share on the road surface (lateral 1-10 m, 0-0.15 m). The road
@@ -194,6 +198,9 @@ class SimConfig:
     #: Correlation of a track's pixel errors from one frame to the next (AR(1), module
     #: docstring), in [0, 1); 0: independent.
     pixel_correlation: float = 0.0
+    #: Correlation of the linear-velocity errors from one sample to the next (AR(1), module
+    #: docstring), in [0, 1); 0: white, as the shared drives' added noise.
+    velocity_correlation: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2**63:
@@ -241,11 +248,13 @@ class SimConfig:
             value = getattr(self, key)
             if not 0.0 <= value <= 1.0:
                 raise InputError(f"simulation: {key} must be in [0, 1], got {value!r}")
-        a = self.pixel_correlation
-        if isinstance(a, bool) or not isinstance(a, numbers.Real) or not 0.0 <= a < MAX_PIXEL_CORRELATION:
-            raise InputError(f"simulation: pixel_correlation must be a number in [0, "
-                             f"{MAX_PIXEL_CORRELATION:g}), got {a!r}")
-        object.__setattr__(self, "pixel_correlation", float(a))
+        for key in ("pixel_correlation", "velocity_correlation"):
+            a = getattr(self, key)
+            if isinstance(a, bool) or not isinstance(a, numbers.Real) \
+                    or not 0.0 <= a < MAX_PIXEL_CORRELATION:
+                raise InputError(f"simulation: {key} must be a number in [0, "
+                                 f"{MAX_PIXEL_CORRELATION:g}), got {a!r}")
+            object.__setattr__(self, key, float(a))
         if self.mean_track_length < 1:
             raise InputError(
                 f"simulation: mean_track_length must be >= 1, got {self.mean_track_length}"
@@ -344,6 +353,18 @@ def file_extrinsic(config: SimConfig, true_cam_T_imu: np.ndarray) -> np.ndarray:
     return out
 
 
+def _velocity_correlation_time(config: SimConfig) -> tuple[float, float, float] | None:
+    """The interval velocity noise's long-run over white variance (ekf.model) of AR(1) samples
+    with correlation a: (1 + a) / (1 - a) over the interval's share of a sample's variance in
+    the model (a half for the "mean" pairing, ekf.model.interval_sigma_factor); None for white
+    samples or no noise."""
+    a = config.velocity_correlation
+    if not a or config.noise_free:
+        return None
+    f2 = 0.5 if config.velocity_pairing == "mean" else 1.0
+    return ((1.0 + a) / (1.0 - a) / f2,) * 3
+
+
 def true_model(result: SimResult):
     """The true model of a simulated drive (see :attr:`SimResult.model`)."""
     from vislam.ekf.config import SIGMA_MIN, per_axis
@@ -368,6 +389,7 @@ def true_model(result: SimResult):
         gyro_bias=bias,
         radial_k1=config.radial_k1 or None,
         pixel_correlation_time=(1.0 + a) / (1.0 - a) if (a := config.pixel_correlation) else None,
+        velocity_correlation_time=_velocity_correlation_time(config),
         source=f"vislam simulate: the true model of {result.sequence.name} ({seed_text})",
         file={"cam_T_imu": result.sequence.calibration.cam_T_imu},
     )
@@ -580,6 +602,19 @@ def _observe(
 # --------------------------------------------------------------------------- entry points
 
 
+def ar1_rows(white: np.ndarray, a: float) -> np.ndarray:
+    """Unit-variance AR(1) series along the rows of the standard normal draws ``white`` (T, d):
+    ``e_0 = w_0``, ``e_k = a e_k-1 + sqrt(1 - a^2) w_k`` (``white`` itself for a = 0)."""
+    if a == 0.0:
+        return white
+    out = np.empty_like(white)
+    out[0] = white[0]
+    c = np.sqrt(1.0 - a * a)
+    for k in range(1, white.shape[0]):
+        out[k] = a * out[k - 1] + c * white[k]
+    return out
+
+
 def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
     """Simulate one drive (see the module docstring for the model)."""
     # spawn(6)'s first five children equal spawn(5)'s: adding a stream changed no old drive
@@ -609,7 +644,8 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
 
     noise = np.zeros((T, 6))
     if not config.noise_free:
-        noise[:, :3] = _sigma(config.velocity_sigma) * rng_velocity.standard_normal((T, 3))
+        noise[:, :3] = _sigma(config.velocity_sigma) * ar1_rows(
+            rng_velocity.standard_normal((T, 3)), config.velocity_correlation)
         noise[:, 3:] = _sigma(config.gyro_sigma) * rng_velocity.standard_normal((T, 3))
         noise[:, 3:] += np.asarray(config.gyro_bias)
     u_meas = u_true + noise
