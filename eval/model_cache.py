@@ -38,7 +38,7 @@ from vislam.graph.settings import SmootherSettings
 log = logging.getLogger(__name__)
 
 #: Changes whenever the identification would give a different answer on the same input.
-IDENTIFICATION_VERSION = "2026-11-27.1"
+IDENTIFICATION_VERSION = "2026-11-25.1"
 
 
 @dataclass
@@ -112,6 +112,7 @@ def fit_report(fit) -> dict:
         "radial_k1_std": None if fit.radial_k1_std is None else float(fit.radial_k1_std),
         "radial_test": dict(fit.radial_test),
         "pixel_correlation_test": dict(fit.pixel_correlation_test),
+        "motion_correlation_test": dict(fit.motion_correlation_test),
         "pairing_scores": dict(fit.pairing_scores),
         "em_steps": int(fit.iterations),
         "converged": bool(fit.converged),

@@ -72,7 +72,7 @@ from scipy.stats import chi2
 from vislam.ekf.config import VELOCITY_PAIRINGS, FilterConfig
 from vislam.ekf.conventions import estimate_cov_to_gtsam
 from vislam.ekf.errors import EstimationError
-from vislam.ekf.model import interval_sigma_factor, with_extrinsic, without_radial
+from vislam.ekf.model import interval_sigma_factor, long_run_pixel_sigma, with_extrinsic, without_radial
 from vislam.ekf.sequence import Sequence
 from vislam.graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
 from vislam.graph.settings import SmootherSettings
@@ -144,6 +144,12 @@ class ModelFit:
     pixel_correlation_time: float | None = None
     #: its estimate, lag correlations, statistic, threshold, decision
     pixel_correlation_test: dict = field(default_factory=dict)
+    #: long-run over white interval variance of the velocity and gyro noise per axis
+    #: (graph.motion_correlation), None when the data support none
+    velocity_correlation_time: tuple[float, float, float] | None = None
+    gyro_correlation_time: tuple[float, float, float] | None = None
+    #: its blocks, long-run sigmas, variance ratios, threshold, decision per axis
+    motion_correlation_test: dict = field(default_factory=dict)
     #: pairing -> sum over the 6 axes of log(per-sample sigma^2) (lower is better: the decision)
     pairing_scores: dict = field(default_factory=dict)
     #: pairing -> Laplace -2 log L under independent intervals (reported; it favours "mean",
@@ -179,6 +185,8 @@ class ModelFit:
             radial_k1=None if self.radial_k1 is None else float(self.radial_k1),
             radial_k1_sigma=None if self.radial_k1 is None else float(self.radial_k1_std),
             pixel_correlation_time=self.pixel_correlation_time,
+            velocity_correlation_time=self.velocity_correlation_time,
+            gyro_correlation_time=self.gyro_correlation_time,
             cam_T_imu_sigma=sigma,
             cam_T_imu_undetermined=tuple(n for n in EXTRINSIC_COMPONENTS
                                          if n in self.cam_T_imu_undetermined),
@@ -513,7 +521,14 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     correlation = solution_track_correlation(solution)
     pixel_sigma = stats.pixel_sigma * correlation.sigma_factor
 
+    # The velocity and gyro errors' slow part, on blocks of the drive under the model the
+    # estimators will use (bias as decided, long-run pixel sigma): where it is significant the
+    # estimators use the long-run interval sigma (graph.motion_correlation).
     interval = stats.interval_sigma
+    motion = _motion_correlation(seq, em.cam_T_imu, cfg, settings, em_tol,
+                                 solution if has_bias else no_bias, interval, f,
+                                 long_run_pixel_sigma(pixel_sigma, correlation.time), has_bias)
+
     n = max(stats.n_intervals, 1)
     dof_px = max(stats.n_pixel_dims - stats.pixel_leverage, 1.0)
     ext = em.extrinsic
@@ -545,6 +560,9 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
             "std": radial_fit.std if np.isfinite(radial_fit.std) else None, **radial_fit.test},
         pixel_correlation_time=correlation.time,
         pixel_correlation_test={**correlation.to_dict(), "white_sigma": stats.pixel_sigma},
+        velocity_correlation_time=motion.velocity_time,
+        gyro_correlation_time=motion.gyro_time,
+        motion_correlation_test=motion.to_dict(),
         pairing_scores=scores,
         pairing_laplace=laplace,
         iterations=total_steps,
@@ -553,6 +571,28 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
         solution=solution,
         config=cfg,
     )
+
+
+def _motion_correlation(seq: Sequence, cam_T_imu: np.ndarray, cfg: FilterConfig,
+                        settings: SmootherSettings, tol: float, solution, interval: np.ndarray,
+                        f: float, pixel_sigma: float, has_bias: bool):
+    """:func:`graph.motion_correlation.motion_correlation` of the identified model: the
+    smoother solved with the rows of ``solution``, the long-run ``pixel_sigma`` and the gyro
+    bias estimated only where the model has one."""
+    from vislam.graph.motion_correlation import motion_correlation
+    from vislam.graph.smoother import solve_smoother
+
+    seq = with_extrinsic(seq, cam_T_imu)
+    smoother = settings.replace(gyro_bias="alternate" if has_bias else "off", rejection_rounds=0,
+                                relative_error_tol=tol, rejection_relative_error_tol=tol)
+    base = cfg.replace(pixel_sigma=float(pixel_sigma))
+
+    def solve(sigma: np.ndarray, warm):
+        return solve_smoother(seq, base.replace(gyro_sigma=tuple(map(float, sigma[:3])),
+                                                velocity_sigma=tuple(map(float, sigma[3:]))),
+                              smoother, warm_start=warm)
+
+    return motion_correlation(solve, solution, interval, interval / f)
 
 
 __all__ = ["ModelFit", "EMResult", "NoiseStatistics", "identify_model", "em_noise",

@@ -1,0 +1,273 @@
+"""Velocity and gyro errors correlated in time: their long-run sigma, from whole blocks of the
+drive.
+
+Every estimator treats the twist noise of one interval as independent of the next. A vehicle's
+velocity source does not make it so: on the 2019 edition of KITTI 0027 the body-frame velocity
+errors against ground truth correlate at 0.6-0.9 from one frame to the next and still at 0.3 five
+seconds apart (lateral), so over five seconds they add up to 8-24 times the variance that
+independent errors of the same spread would (``benchmarks/lever_arm_truth.py`` names the
+drive's other velocity finding). A drive's drift is built from that slow part. EM fits the
+white model to the interval residuals (:mod:`graph.identification`); where the motion is
+smooth and vision weak it then finds the high-frequency spread (forward velocity 0.0057 m/s on
+that drive), and every estimator is overconfident about what the velocities integrate to (pose
+NEES 16-23 against ground truth).
+
+What the estimators need is the twist noise's long-run variance, the white-equivalent that
+gives the right variance of a sum over many intervals (the Newey-West correction the pixels'
+model makes along tracks, :mod:`graph.track_correlation`). It is measured here the way the
+batch-means method measures a long-run variance: on the drive cut into blocks of
+``BLOCK_SECONDS``, longer than the errors' correlation. For block ``B = [s, e]``
+
+    eps_B = Log(Delta_B^-1 X_s^-1 X_e),   Delta_B = Delta_s ... Delta_e-1     (the block residual)
+
+and a white-equivalent interval covariance ``W = diag(sigma^2)`` (GTSAM order, rotation first)
+predicts
+
+    E[eps_B eps_B^T] = sum_k A_k W A_k^T,  A_k = Ad((Delta_k+1 ... Delta_e-1)^-1) tau_k J_r(tau_k u_k)
+
+(interval k's right perturbation moved to the block's end). The expected squared residual of a
+solved smoother is ``eps_B eps_B^T + C Sigma C^T`` with ``C = [-Ad(rel^-1), I]`` on
+``(X_s, X_e)`` and ``Sigma`` the Laplace posterior (``H^-1`` of the whole graph, landmarks
+included): the posterior term gives back what the smoother took into the trajectory, as in
+EM's M-step. Matching the diagonals over all blocks is a non-negative least-squares problem in
+``sigma^2``; the smoother is solved again with it, and so on to the fixed point (EM at the
+scale of blocks; :func:`fixed_point` finds it by a secant search per axis). Each axis is kept
+at least at its white per-sample sigma.
+
+Decision, per axis: the long-run sigma replaces the white one when its variance exceeds the
+per-sample variance of white samples by more than a chi-square with ``n_blocks`` degrees of
+freedom allows (``LEVEL``, one-sided): under white samples the block estimate is a mean of
+``n_blocks`` squares. The model then carries the ratio ``tau = sigma_long_run^2 /
+sigma_interval^2`` (``velocity_correlation_time``, ``gyro_correlation_time``; frames, the
+integrated correlation time of the interval noise) and the estimators use ``sigma sqrt(tau)``
+(:func:`ekf.model.model_config`). With the "mean" pairing two intervals share a sample, so
+white samples give ``tau = 2``; the test's null is the samples', so that alone is not
+evidence. Drives shorter than ``MIN_BLOCKS`` blocks are not tested (too few sums to tell).
+
+Measured (``vislam calibrate``): the 2019 edition of 0027 keeps the long-run sigma of all three
+velocity axes, shared 0027 of its vertical one; the simulator's white noise, none.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+import scipy.sparse.linalg as spla
+from scipy.optimize import nnls
+from scipy.stats import chi2
+
+from vislam.ekf.errors import EstimationError
+from vislam.graph.marginals import whitened_system
+from vislam.graph.pose_conversions import X, expmap_right_jacobian, to_pose3, twist_to_gtsam
+
+log = logging.getLogger(__name__)
+
+#: Block length in seconds: longer than the velocity errors' correlation (about 5 s laterally
+#: on KITTI 0027), short enough for MIN_BLOCKS blocks on a two-minute drive.
+BLOCK_SECONDS = 5.0
+#: Fewer blocks than this: no test (the long-run variance of fewer sums is too uncertain).
+MIN_BLOCKS = 8
+#: One-sided level of the per-axis chi-square test against white samples: six axes are
+#: tested at once, so 0.999 keeps the chance of a white drive keeping one near 0.6 % (at 0.99
+#: a simulated white 80 s drive kept its vertical axis at a variance ratio of 2.9).
+LEVEL = 0.999
+#: Fixed point: stop when no log sigma moves by more than this.
+RTOL = 0.01
+#: Most smoother solves of the fixed point.
+MAX_SOLVES = 20
+#: Largest change of a log sigma in one secant step (a factor of 4).
+MAX_LOG_STEP = float(np.log(4.0))
+#: Axis names in GTSAM order (rotation first), for reports.
+AXES = ("gyro x", "gyro y", "gyro z", "velocity x", "velocity y", "velocity z")
+
+
+@dataclass
+class BlockStatistics:
+    """One solved smoother's block residuals: ``expected`` (6,) the sum over blocks of the
+    expected squared residual, ``design`` (6, 6) how the interval variances move it (GTSAM
+    order), ``n_blocks``."""
+
+    expected: np.ndarray
+    design: np.ndarray
+    n_blocks: int
+
+    @property
+    def variance(self) -> np.ndarray:
+        """(6,) the white-equivalent interval variances matching the blocks (non-negative
+        least squares)."""
+        s2, _ = nnls(self.design, self.expected)
+        return s2
+
+
+@dataclass
+class MotionCorrelation:
+    """The long-run twist noise (GTSAM order [rotation; translation], per interval) and the
+    per-axis decision. ``time`` (6,) is ``sigma_long_run^2 / sigma_interval^2`` where kept, 1
+    elsewhere (also when not tested: ``tested`` False and ``why``)."""
+
+    time: np.ndarray
+    long_run_sigma: np.ndarray | None = None
+    ratio: np.ndarray | None = None  # long-run variance / white per-sample variance
+    threshold: float | None = None
+    n_blocks: int = 0
+    block_frames: int = 0
+    solves: int = 0
+    converged: bool = False
+    tested: bool = False
+    why: str = ""
+    kept: tuple[str, ...] = ()
+    solution: object = field(default=None, repr=False)  # the last smoother solved
+
+    @property
+    def velocity_time(self) -> tuple[float, float, float] | None:
+        return _times(self.time[3:])
+
+    @property
+    def gyro_time(self) -> tuple[float, float, float] | None:
+        return _times(self.time[:3])
+
+    def to_dict(self) -> dict:
+        def lst(x):
+            return None if x is None else [float(v) for v in np.ravel(x)]
+
+        return {"tested": self.tested, "why": self.why, "n_blocks": self.n_blocks,
+                "block_frames": self.block_frames, "level": LEVEL, "threshold": self.threshold,
+                "long_run_interval_sigma": lst(self.long_run_sigma),
+                "variance_ratio": lst(self.ratio), "correlation_time": lst(self.time),
+                "axes": list(AXES), "kept": list(self.kept), "solves": self.solves,
+                "converged": self.converged,
+                "criterion": f"chi-square {LEVEL:g} on n_blocks dof against white samples"}
+
+
+def _times(t: np.ndarray) -> tuple[float, float, float] | None:
+    return tuple(float(x) for x in t) if np.any(t > 1.0) else None
+
+
+def block_bounds(tau: np.ndarray) -> list[tuple[int, int]]:
+    """Blocks ``(s, e)`` of whole intervals of about ``BLOCK_SECONDS`` each (pose indices)."""
+    dt = float(np.median(tau)) if len(tau) else 0.0
+    if not np.isfinite(dt) or dt <= 0:
+        return []
+    length = max(int(round(BLOCK_SECONDS / dt)), 1)
+    return [(s, s + length) for s in range(0, len(tau) - length + 1, length)]
+
+
+def transport_jacobians(deltas: np.ndarray, twist: np.ndarray, tau: np.ndarray,
+                        s: int, e: int) -> np.ndarray:
+    """``A_k`` (e - s, 6, 6) for the intervals of block ``[s, e]`` (module docstring)."""
+    out = np.empty((e - s, 6, 6))
+    after = gtsam.Pose3()  # Delta_k+1 ... Delta_e-1
+    for k in range(e - 1, s - 1, -1):
+        J = tau[k] * expmap_right_jacobian(twist_to_gtsam(tau[k] * twist[k]))
+        out[k - s] = after.inverse().AdjointMap() @ J
+        after = to_pose3(deltas[k]).compose(after)
+    return out
+
+
+def block_residual(poses: np.ndarray, deltas: np.ndarray, s: int, e: int) -> tuple[np.ndarray, np.ndarray]:
+    """``eps_B`` (6,) of block ``[s, e]`` and its Jacobian blocks on ``X_s`` and ``X_e``."""
+    rel = to_pose3(poses[s]).between(to_pose3(poses[e]))
+    measured = gtsam.Pose3()
+    for k in range(s, e):
+        measured = measured.compose(to_pose3(deltas[k]))
+    eps = gtsam.Pose3.Logmap(measured.between(rel))
+    return eps, -rel.inverse().AdjointMap()
+
+
+def block_statistics(solution, blocks: list[tuple[int, int]]) -> BlockStatistics:
+    """:class:`BlockStatistics` of a solved smoother (:class:`graph.smoother.SmootherSolution`)."""
+    system = whitened_system(solution.problem.graph, solution.values,
+                             "linearising for the block residuals")
+    H = (system.A.T @ system.A).tocsc()
+    try:
+        factor = spla.splu(H)
+    except RuntimeError as exc:
+        raise EstimationError(f"motion correlation: the information matrix is singular ({exc})") from None
+    n = H.shape[0]
+    C = np.zeros((6 * len(blocks), n))
+    eps = np.zeros((len(blocks), 6))
+    design = np.zeros((6, 6))
+    for b, (s, e) in enumerate(blocks):
+        eps[b], Cs = block_residual(solution.poses, solution.deltas, s, e)
+        rows = slice(6 * b, 6 * b + 6)
+        C[rows, system.offsets[X(s)]:system.offsets[X(s)] + 6] = Cs
+        C[rows, system.offsets[X(e)]:system.offsets[X(e)] + 6] = np.eye(6)
+        A = transport_jacobians(solution.deltas, solution.twist, solution.tau, s, e)
+        design += np.sum(A * A, axis=0)
+    Y = factor.solve(C.T)
+    posterior = np.einsum("ij,ji->i", C, Y)  # diag of C H^-1 C^T
+    expected = np.sum(eps * eps, axis=0) + posterior.reshape(len(blocks), 6).sum(axis=0)
+    return BlockStatistics(expected, design, len(blocks))
+
+
+def fixed_point(step, theta: np.ndarray, floor: np.ndarray, rtol: float = RTOL,
+                max_solves: int = MAX_SOLVES) -> tuple[np.ndarray, bool]:
+    """The log sigmas where ``step`` (the blocks' log sigmas under the model ``theta``) gives
+    back ``theta``, at least ``floor``: a secant search on ``h(theta) = step(theta) - theta``
+    per axis (the axes barely interact), from one plain step. Plain iteration (EM) creeps
+    where vision leaves much of the motion to the posterior (the forward velocity of the 2019
+    edition of 0027: a few % per solve); the secant takes the slope of ``h`` into account.
+    Steps are at most ``MAX_LOG_STEP``. Returns the last theta and whether it settled."""
+    floor = np.asarray(floor, dtype=float)
+    prev_theta, prev_h = None, None
+    for _ in range(max_solves):
+        h = step(theta) - theta
+        settled = (np.abs(h) < rtol) | ((theta <= floor + 1e-12) & (h <= 0))
+        if np.all(settled):
+            return theta, True
+        move = h.copy()  # plain step where no slope is known
+        if prev_h is not None:
+            dh, dt = h - prev_h, theta - prev_theta
+            ok = (np.abs(dt) > 1e-12) & (dh * dt < 0)  # h decreasing through the root
+            move[ok] = -h[ok] * dt[ok] / dh[ok]
+        move = np.clip(move, -MAX_LOG_STEP, MAX_LOG_STEP)
+        prev_theta, prev_h = theta, h
+        theta = np.maximum(theta + np.where(settled, 0.0, move), floor)
+    return theta, False
+
+
+def motion_correlation(solve, solution, interval_sigma: np.ndarray, sample_sigma: np.ndarray) -> MotionCorrelation:
+    """The long-run twist noise of a drive (module docstring).
+
+    ``solve(sigma, warm)`` solves the smoother with interval sigmas ``sigma`` (6,) (GTSAM order),
+    warm-started from the solution ``warm``, and returns its solution; ``solution`` is the smoother EM ended with (at ``interval_sigma``, the
+    white fit), ``sample_sigma`` (6,) the white per-sample sigmas (the null and the floor)."""
+    interval_sigma = np.asarray(interval_sigma, dtype=float)
+    floor = np.log(np.asarray(sample_sigma, dtype=float))
+    blocks = block_bounds(solution.tau)
+    ones = np.ones(6)
+    frames = blocks[0][1] - blocks[0][0] if blocks else 0
+    if len(blocks) < MIN_BLOCKS:
+        return MotionCorrelation(ones, n_blocks=len(blocks), block_frames=frames,
+                                 why=f"{len(blocks)} blocks of {BLOCK_SECONDS:g} s, fewer than "
+                                     f"{MIN_BLOCKS}")
+    state = {"solution": solution, "solves": 0}
+
+    def step(theta: np.ndarray) -> np.ndarray:
+        state["solution"] = solve(np.exp(theta), state["solution"])
+        state["solves"] += 1
+        s2 = block_statistics(state["solution"], blocks).variance
+        out = 0.5 * np.log(np.maximum(s2, 1e-30))
+        log.info("motion correlation: interval sigma gyro %s, velocity %s -> blocks' gyro %s, "
+                 "velocity %s", np.round(np.exp(theta[:3]), 5), np.round(np.exp(theta[3:]), 4),
+                 np.round(np.exp(out[:3]), 5), np.round(np.exp(out[3:]), 4))
+        return out
+
+    theta, converged = fixed_point(step, np.maximum(np.log(interval_sigma), floor), floor)
+    long_run = np.exp(theta)
+    ratio = (long_run / sample_sigma) ** 2
+    n = len(blocks)
+    threshold = float(chi2.ppf(LEVEL, n) / n)
+    keep = ratio > threshold
+    time = np.where(keep, (long_run / interval_sigma) ** 2, 1.0)
+    return MotionCorrelation(time, long_run, ratio, threshold, n, frames, state["solves"],
+                             converged, True, "", tuple(a for a, k in zip(AXES, keep) if k),
+                             state["solution"])
+
+
+__all__ = ["BlockStatistics", "MotionCorrelation", "block_bounds", "block_residual",
+           "block_statistics", "motion_correlation", "transport_jacobians", "BLOCK_SECONDS",
+           "MIN_BLOCKS", "LEVEL", "AXES"]
