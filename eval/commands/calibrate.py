@@ -153,6 +153,21 @@ def _verdict(fit) -> list[str]:
     return lines
 
 
+
+def _motion_correlation_line(m: dict) -> str:
+    """The velocity and gyro errors' long-run sigma (graph.motion_correlation), one line."""
+    if not m:
+        return "velocity errors in time: not measured"
+    if not m.get("tested"):
+        return f"velocity errors in time: not tested ({m.get('why', '')})"
+    ratios = ", ".join(f"{a} {r:.3g}" for a, r in zip(m["axes"], m["variance_ratio"]))
+    kept = (", ".join(m["kept"]) + ": the estimators use the long-run interval sigma "
+            + ", ".join(f"{a} {s:.3g}" for a, s in zip(m["axes"], m["long_run_interval_sigma"])
+                        if a in m["kept"])) if m["kept"] else "none kept (white)"
+    return (f"velocity errors in time: long-run / white variance over {m['n_blocks']} blocks of "
+            f"{m['block_frames']} frames {ratios} against {m['threshold']:.3g} "
+            f"({m['criterion']}): {kept}")
+
 def report(name: str, frames: int, fit, config) -> str:
     """The identified model beside the settings it replaces, and a verdict per quantity."""
     from vislam.ekf.model import EXTRINSIC_COMPONENTS, long_run_pixel_sigma
@@ -228,6 +243,7 @@ def report(name: str, frames: int, fit, config) -> str:
                      f"{c['threshold']:.2f} ({c['criterion']}): {c['decision']}, the residuals' "
                      f"correlation time {c['estimate']:.3g} frames ({c['lags_summed']} lags)"
                      f"{corrected}{used}")
+    lines.append(_motion_correlation_line(fit.motion_correlation_test))
     scores = ", ".join(f"{p} {s:.2f}" for p, s in sorted(fit.pairing_scores.items(), key=lambda x: x[1]))
     lines.append(f"velocity pairing: sum of log per-sample variance {scores} (lowest wins)")
     if fit.cam_T_imu_undetermined:
