@@ -36,7 +36,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B
 
-from vislam.graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
+from vislam.graph.pose_conversions import interval_jacobians, to_pose3
 
 log = logging.getLogger(__name__)
 
@@ -48,11 +48,7 @@ def bias_jacobians(twists: np.ndarray, tau: np.ndarray) -> np.ndarray:
     """``D_k`` (T-1, 6, 3): how a gyro bias moves each interval's relative pose (module docstring).
 
     ``twists`` (T-1, 6) translation first, ``tau`` (T-1,) seconds."""
-    xi_g = twist_to_gtsam(tau[:, None] * twists)
-    D = np.empty((len(tau), 6, 3))
-    for k in range(len(tau)):
-        D[k] = tau[k] * expmap_right_jacobian(xi_g[k])[:, :3]
-    return D
+    return interval_jacobians(twists, tau)[:, :, :3]
 
 
 def corrected_delta(delta: gtsam.Pose3, D: np.ndarray, bias: np.ndarray) -> gtsam.Pose3:

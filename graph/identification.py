@@ -74,7 +74,7 @@ from vislam.ekf.conventions import estimate_cov_to_gtsam
 from vislam.ekf.errors import EstimationError
 from vislam.ekf.model import interval_sigma_factor, long_run_pixel_sigma, with_extrinsic, without_radial
 from vislam.ekf.sequence import Sequence
-from vislam.graph.pose_conversions import expmap_right_jacobian, to_pose3, twist_to_gtsam
+from vislam.graph.pose_conversions import interval_jacobians, to_pose3
 from vislam.graph.settings import SmootherSettings
 
 log = logging.getLogger(__name__)
@@ -205,12 +205,11 @@ def motion_residuals(poses: np.ndarray, deltas: np.ndarray, twist: np.ndarray, t
     n = max(poses.shape[0] - 1, 0)
     w = np.zeros((n, 6))
     cw = np.zeros((n, 6, 6))
-    scale = np.zeros((n, 6, 6))
+    scale = interval_jacobians(twist[:n], tau[:n])
     for k in range(n):
         Xk, Xk1 = to_pose3(poses[k]), to_pose3(poses[k + 1])
         rel = Xk.between(Xk1)
         err = gtsam.Pose3.Logmap(to_pose3(deltas[k]).between(rel))
-        scale[k] = tau[k] * expmap_right_jacobian(twist_to_gtsam(tau[k] * twist[k]))
         M = np.linalg.inv(scale[k])
         w[k] = M @ err
         C = M @ np.hstack([-rel.inverse().AdjointMap(), np.eye(6)])

@@ -61,7 +61,7 @@ from scipy.stats import chi2
 
 from vislam.ekf.errors import EstimationError
 from vislam.graph.marginals import whitened_system
-from vislam.graph.pose_conversions import X, expmap_right_jacobian, to_pose3, twist_to_gtsam
+from vislam.graph.pose_conversions import X, interval_jacobians, to_pose3
 
 log = logging.getLogger(__name__)
 
@@ -158,11 +158,10 @@ def block_bounds(tau: np.ndarray) -> list[tuple[int, int]]:
 def transport_jacobians(deltas: np.ndarray, twist: np.ndarray, tau: np.ndarray,
                         s: int, e: int) -> np.ndarray:
     """``A_k`` (e - s, 6, 6) for the intervals of block ``[s, e]`` (module docstring)."""
-    out = np.empty((e - s, 6, 6))
+    out = interval_jacobians(twist[s:e], tau[s:e])
     after = gtsam.Pose3()  # Delta_k+1 ... Delta_e-1
     for k in range(e - 1, s - 1, -1):
-        J = tau[k] * expmap_right_jacobian(twist_to_gtsam(tau[k] * twist[k]))
-        out[k - s] = after.inverse().AdjointMap() @ J
+        out[k - s] = after.inverse().AdjointMap() @ out[k - s]
         after = to_pose3(deltas[k]).compose(after)
     return out
 

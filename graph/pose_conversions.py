@@ -54,6 +54,18 @@ def expmap_right_jacobian(xi_gtsam: np.ndarray) -> np.ndarray:
     return np.asarray(gtsam.Pose3.ExpmapDerivative(np.asarray(xi_gtsam, dtype=float)))
 
 
+def interval_jacobians(twist: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """``tau_k J_r(tau_k u_k)`` (n, 6, 6), GTSAM order: how a twist error ``w`` (rotation first)
+    of interval k moves its relative motion, ``exp(tau (u + w)) ~= exp(tau u) Exp(tau J_r w)``.
+    ``twist`` (n, 6) translation first, ``tau`` (n,) seconds."""
+    tau = np.asarray(tau, dtype=float)
+    xi_g = twist_to_gtsam(tau[:, None] * np.asarray(twist, dtype=float).reshape(-1, 6))
+    out = np.empty((len(tau), 6, 6))
+    for k in range(len(tau)):
+        out[k] = tau[k] * expmap_right_jacobian(xi_g[k])
+    return out
+
+
 def key_name(key: int) -> str:
     """``'pose x12'`` / ``'landmark l345'`` for a key made with :data:`X` / :data:`L`."""
     symbol = gtsam.Symbol(int(key))
