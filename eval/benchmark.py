@@ -743,12 +743,10 @@ def _model_line(model: dict | None) -> str:
     slow = [f"{what} {', '.join(f'{x:.3g}' for x in times)}"
             for what, times in (("velocity", m.get("velocity_correlation_time")),
                                 ("gyro", m.get("gyro_correlation_time"))) if times]
-    if slow:
-        g += (" rad/s, velocity errors correlated in time (long-run / white variance "
-              + "; ".join(slow) + ": the estimators use the long-run sigmas)")
-    else:
-        g += " rad/s"
-    text = (f"Model {how}: velocity sigma {v} m/s, gyro sigma {g}, pixel sigma "
+    drifting = "" if not slow else (", velocity errors correlated in time (long-run / white "
+                                    "variance " + "; ".join(slow)
+                                    + ": the estimators use the long-run sigmas)")
+    text = (f"Model {how}: velocity sigma {v} m/s, gyro sigma {g} rad/s{drifting}, pixel sigma "
             f"{m.get('pixel_sigma', float('nan')):.3g} px{correlated}, pairing "
             f"{m.get('velocity_pairing')}, "
             f"{bias}{radial}")

@@ -123,8 +123,8 @@ _BORDER_PX = 5.0
 
 #: Longest simulated drive (KITTI's longest sequence has about 4500 frames).
 MAX_SIM_FRAMES = 20000
-#: Upper end (excluded) of ``SimConfig.pixel_correlation``.
-MAX_PIXEL_CORRELATION = 0.99
+#: Upper end (excluded) of ``SimConfig.pixel_correlation`` and ``velocity_correlation``.
+MAX_CORRELATION = 0.99
 #: Upper bounds of the settings: beyond them a drive is no longer KITTI-like, and squares of
 #: the noise levels would overflow.
 _SIM_UPPER_BOUNDS = {
@@ -251,9 +251,9 @@ class SimConfig:
         for key in ("pixel_correlation", "velocity_correlation"):
             a = getattr(self, key)
             if isinstance(a, bool) or not isinstance(a, numbers.Real) \
-                    or not 0.0 <= a < MAX_PIXEL_CORRELATION:
+                    or not 0.0 <= a < MAX_CORRELATION:
                 raise InputError(f"simulation: {key} must be a number in [0, "
-                                 f"{MAX_PIXEL_CORRELATION:g}), got {a!r}")
+                                 f"{MAX_CORRELATION:g}), got {a!r}")
             object.__setattr__(self, key, float(a))
         if self.mean_track_length < 1:
             raise InputError(
@@ -602,19 +602,6 @@ def _observe(
 # --------------------------------------------------------------------------- entry points
 
 
-def ar1_rows(white: np.ndarray, a: float) -> np.ndarray:
-    """Unit-variance AR(1) series along the rows of the standard normal draws ``white`` (T, d):
-    ``e_0 = w_0``, ``e_k = a e_k-1 + sqrt(1 - a^2) w_k`` (``white`` itself for a = 0)."""
-    if a == 0.0:
-        return white
-    out = np.empty_like(white)
-    out[0] = white[0]
-    c = np.sqrt(1.0 - a * a)
-    for k in range(1, white.shape[0]):
-        out[k] = a * out[k - 1] + c * white[k]
-    return out
-
-
 def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
     """Simulate one drive (see the module docstring for the model)."""
     # spawn(6)'s first five children equal spawn(5)'s: adding a stream changed no old drive
@@ -644,8 +631,13 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
 
     noise = np.zeros((T, 6))
     if not config.noise_free:
-        noise[:, :3] = _sigma(config.velocity_sigma) * ar1_rows(
-            rng_velocity.standard_normal((T, 3)), config.velocity_correlation)
+        white = rng_velocity.standard_normal((T, 3))
+        if config.velocity_correlation:  # the drive as one track of AR(1) errors
+            from vislam.graph.track_correlation import ar1_along_tracks
+
+            white = ar1_along_tracks(np.arange(T), np.zeros(T, dtype=np.int64),
+                                     config.velocity_correlation, white)
+        noise[:, :3] = _sigma(config.velocity_sigma) * white
         noise[:, 3:] = _sigma(config.gyro_sigma) * rng_velocity.standard_normal((T, 3))
         noise[:, 3:] += np.asarray(config.gyro_bias)
     u_meas = u_true + noise

@@ -51,7 +51,7 @@ velocity axes, shared 0027 of its vertical one; the simulator's white noise, non
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -119,7 +119,6 @@ class MotionCorrelation:
     tested: bool = False
     why: str = ""
     kept: tuple[str, ...] = ()
-    solution: object = field(default=None, repr=False)  # the last smoother solved
 
     @property
     def velocity_time(self) -> tuple[float, float, float] | None:
@@ -263,8 +262,7 @@ def motion_correlation(solve, solution, interval_sigma: np.ndarray, sample_sigma
     keep = ratio > threshold
     time = np.where(keep, (long_run / interval_sigma) ** 2, 1.0)
     return MotionCorrelation(time, long_run, ratio, threshold, n, frames, state["solves"],
-                             converged, True, "", tuple(a for a, k in zip(AXES, keep) if k),
-                             state["solution"])
+                             converged, True, "", tuple(a for a, k in zip(AXES, keep) if k))
 
 
 __all__ = ["BlockStatistics", "MotionCorrelation", "block_bounds", "block_residual",
