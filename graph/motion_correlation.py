@@ -45,7 +45,8 @@ white samples give ``tau = 2``; the test's null is the samples', so that alone i
 evidence. Drives shorter than ``MIN_BLOCKS`` blocks are not tested (too few sums to tell).
 
 Measured (``vislam calibrate``): the 2019 edition of 0027 keeps the long-run sigma of all three
-velocity axes, shared 0027 of its vertical one; the simulator's white noise, none.
+velocity axes (variance ratios 7.1, 11.5, 11.6 against 2.16 over 23 blocks); shared 0027, whose
+added noise is white, none (at most 1.45); the simulator's white noise, none.
 """
 
 from __future__ import annotations
@@ -230,9 +231,10 @@ def fixed_point(step, theta: np.ndarray, floor: np.ndarray, rtol: float = RTOL,
 def motion_correlation(solve, solution, interval_sigma: np.ndarray, sample_sigma: np.ndarray) -> MotionCorrelation:
     """The long-run twist noise of a drive (module docstring).
 
-    ``solve(sigma, warm)`` solves the smoother with interval sigmas ``sigma`` (6,) (GTSAM order),
-    warm-started from the solution ``warm``, and returns its solution; ``solution`` is the smoother EM ended with (at ``interval_sigma``, the
-    white fit), ``sample_sigma`` (6,) the white per-sample sigmas (the null and the floor)."""
+    ``solve(sigma, warm)`` solves the smoother with interval sigmas ``sigma`` (6,) (GTSAM
+    order), warm-started from the solution ``warm``; ``solution`` is the smoother EM ended with
+    (at ``interval_sigma``, the white fit), ``sample_sigma`` (6,) the white per-sample sigmas
+    (the null and the floor)."""
     interval_sigma = np.asarray(interval_sigma, dtype=float)
     floor = np.log(np.asarray(sample_sigma, dtype=float))
     blocks = block_bounds(solution.tau)
