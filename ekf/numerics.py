@@ -169,12 +169,8 @@ def add_pose_rows(P: np.ndarray, core: int, C: np.ndarray) -> None:
     Cz = np.zeros((N, 6))
     Cz[core:] = C
     V = W + Cz @ W[:6]
-    # dgemm on the Fortran view P.T adds (A B^T)^T = B A^T to P, A = [Cz, V], B = [W, Cz]:
     # P += W Cz^T + Cz V^T (the terms above, transposed: the same products, rows for columns).
-    out = dgemm(1.0, np.hstack([Cz, V]), np.hstack([W, Cz]), beta=1.0, c=P.T, trans_b=1,
-                overwrite_c=1)
-    if not np.shares_memory(out, P):  # P not C-ordered: BLAS worked on a copy
-        P[...] = out.T
+    add_outer(P, np.hstack([W, Cz]), np.hstack([Cz, V]))
 
 
 class Scratch:
