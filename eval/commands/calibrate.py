@@ -153,7 +153,6 @@ def _verdict(fit) -> list[str]:
     return lines
 
 
-
 def _motion_correlation_line(m: dict) -> str:
     """The velocity and gyro errors' long-run sigma (graph.motion_correlation), one line."""
     if not m:
@@ -167,6 +166,7 @@ def _motion_correlation_line(m: dict) -> str:
     return (f"velocity errors in time: long-run / white variance over {m['n_blocks']} blocks of "
             f"{m['block_frames']} frames {ratios} against {m['threshold']:.3g} "
             f"({m['criterion']}): {kept}")
+
 
 def report(name: str, frames: int, fit, config) -> str:
     """The identified model beside the settings it replaces, and a verdict per quantity."""
