@@ -129,3 +129,29 @@ def test_simulator_velocity_correlation_is_checked_and_changes_nothing_when_zero
     assert np.array_equal(a.linear_velocity, b.linear_velocity)
     assert not np.array_equal(a.linear_velocity, c.linear_velocity)
     assert np.array_equal(a.angular_velocity, c.angular_velocity)
+
+
+def test_simulate_command_writes_the_velocity_correlation_and_refuses_a_bad_one(tmp_path, capsys):
+    """``vislam simulate --velocity-correlation A``: the drive's velocities drift and its true
+    model (NAME_model.toml) carries their long-run variance; a value outside [0, 0.99) is a
+    one-line error (exit 2) naming the setting, and nothing is written."""
+    from vislam.ekf.model import Model
+    from vislam.eval.cli import main
+
+    out = tmp_path / "sim"
+    assert main(["simulate", "--out", str(out), "--frames", "30", "--seed", "5",
+                 "--velocity-correlation", "0.8"]) == 0
+    model = Model.from_toml(out / "sim-seed5_model.toml")
+    expected = true_model(simulate(SimConfig(seed=5, n_frames=30, velocity_correlation=0.8)))
+    assert model.velocity_correlation_time is not None
+    assert np.allclose(model.velocity_correlation_time, expected.velocity_correlation_time)
+    drifting = np.load(out / "sim-seed5.npz")["linear_velocity"]
+    white = simulate(SimConfig(seed=5, n_frames=30)).sequence.linear_velocity
+    assert not np.allclose(drifting, np.asarray(white).reshape(drifting.shape))
+
+    capsys.readouterr()
+    bad = tmp_path / "bad"
+    assert main(["simulate", "--out", str(bad), "--frames", "30",
+                 "--velocity-correlation", "1.5"]) == 2
+    assert "velocity_correlation" in capsys.readouterr().err
+    assert not bad.exists() or not any(bad.iterdir())

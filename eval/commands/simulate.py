@@ -5,7 +5,8 @@ the left camera with time), ``OUT/NAME_landmarks.npz`` (true landmarks, poses, v
 ``OUT/NAME_model.toml`` (the true model of the drive: ekf.model). The same seed and settings
 always give the same bytes. Faults a model identification must find: per-axis velocity noise
 (``--velocity-sigma 0.05,0.04,0.03``), a gyro bias, the velocity pairing of the samples, and a
-wrong extrinsic in the file (``--file-extrinsic-fault kitti``, ``--file-extrinsic-offset``).
+wrong extrinsic in the file (``--file-extrinsic-fault kitti``, ``--file-extrinsic-offset``),
+and velocity errors that drift in time (``--velocity-correlation``).
 """
 
 from __future__ import annotations
@@ -119,9 +120,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--pixel-correlation",
         type=float,
+        metavar="A",
         default=d.pixel_correlation,
         help="correlation of a track's pixel errors from one frame to the next, like a "
         "tracker's drift: AR(1), in [0, 0.99) (default %(default)s: independent)",
+    )
+    parser.add_argument(
+        "--velocity-correlation",
+        type=float,
+        metavar="A",
+        default=d.velocity_correlation,
+        help="correlation of the linear-velocity errors from one sample to the next, like a "
+        "velocity source that drifts: AR(1), in [0, 0.99); the true model then carries their "
+        "long-run sigma, which 'vislam calibrate' measures (default %(default)s: white)",
     )
     parser.add_argument(
         "--file-extrinsic-offset",
@@ -161,6 +172,8 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         else DEFAULT_SIM.file_extrinsic_offset,
         radial_k1=getattr(args, "radial_k1", DEFAULT_SIM.radial_k1),
         pixel_correlation=getattr(args, "pixel_correlation", DEFAULT_SIM.pixel_correlation),
+        velocity_correlation=getattr(args, "velocity_correlation",
+                                     DEFAULT_SIM.velocity_correlation),
     )
 
 
