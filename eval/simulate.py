@@ -358,11 +358,13 @@ def _velocity_correlation_time(config: SimConfig) -> tuple[float, float, float] 
     with correlation a: (1 + a) / (1 - a) over the interval's share of a sample's variance in
     the model (a half for the "mean" pairing, ekf.model.interval_sigma_factor); None for white
     samples or no noise."""
+    from vislam.ekf.model import interval_sigma_factor
+
     a = config.velocity_correlation
     if not a or config.noise_free:
         return None
-    f2 = 0.5 if config.velocity_pairing == "mean" else 1.0
-    return ((1.0 + a) / (1.0 - a) / f2,) * 3
+    share = interval_sigma_factor(config.velocity_pairing) ** 2
+    return ((1.0 + a) / (1.0 - a) / share,) * 3
 
 
 def true_model(result: SimResult):
