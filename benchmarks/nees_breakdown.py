@@ -47,9 +47,9 @@ def breakdown(est, gt, n_windows: int) -> list[dict]:
     (eval.groundtruth.GroundTruth)."""
     from vislam.eval.metrics import nees_pose, pose_errors
 
-    frames = gt.frames[gt.frames < est.n_frames]
+    keep = gt.frames < est.n_frames
+    frames, truth = gt.frames[keep], gt.poses[keep]
     poses, cov = est.poses[frames], est.pose_cov[frames]
-    truth = gt.poses[: frames.size]
     e = pose_errors(poses, truth)
     nees = nees_pose(poses, cov, truth)
     sd = np.sqrt(np.einsum("tii->ti", cov))
