@@ -740,12 +740,12 @@ def _model_line(model: dict | None) -> str:
     correlated = "" if tau is None else (
         f" correlated along tracks over {tau:.3g} frames (the estimators use "
         f"{long_run_pixel_sigma(m.get('pixel_sigma', float('nan')), tau):.3g} px)")
-    slow = [f"{what} {', '.join(f'{x:.3g}' for x in times)}"
-            for what, times in (("velocity", m.get("velocity_correlation_time")),
-                                ("gyro", m.get("gyro_correlation_time"))) if times]
-    drifting = "" if not slow else (", velocity errors correlated in time (long-run / white "
-                                    "variance " + "; ".join(slow)
-                                    + ": the estimators use the long-run sigmas)")
+    slow = {what: times for what, times in (("velocity", m.get("velocity_correlation_time")),
+                                            ("gyro", m.get("gyro_correlation_time"))) if times}
+    drifting = "" if not slow else (
+        f", {' and '.join(slow)} errors correlated in time (long-run / white variance "
+        + "; ".join(f"{what} {', '.join(f'{x:.3g}' for x in times)}" for what, times in slow.items())
+        + ": the estimators use the long-run sigmas)")
     text = (f"Model {how}: velocity sigma {v} m/s, gyro sigma {g} rad/s{drifting}, pixel sigma "
             f"{m.get('pixel_sigma', float('nan')):.3g} px{correlated}, pairing "
             f"{m.get('velocity_pairing')}, "

@@ -361,3 +361,22 @@ def test_a_model_on_a_drive_with_ground_truth_records_the_truths_lever_arm(tmp_p
     assert done.model["lever_arm"]["ground_truth"] is None
     assert "usable intervals" in done.model["lever_arm"]["ground_truth_error"]
     assert "the ground truth's" not in benchmark._model_line(done.model)
+
+
+def test_the_model_line_names_which_errors_are_correlated_in_time():
+    """summary.md's model line says which of the velocity and gyro errors the model carries a
+    long-run sigma for, with their variance ratios, and nothing where it carries none."""
+    from vislam.ekf.model import Model
+
+    def line(**times):
+        model = Model(velocity_sigma=(0.05,) * 3, gyro_sigma=(0.005,) * 3, pixel_sigma=1.0,
+                      velocity_pairing="next", cam_T_imu=np.eye(4), **times)
+        return benchmark._model_line({"mode": "config", "model": model.to_dict()})
+
+    assert "correlated in time" not in line()
+    both = line(velocity_correlation_time=(7.0, 11.5, 1.0), gyro_correlation_time=(2.5, 1.0, 1.0))
+    assert ("velocity and gyro errors correlated in time (long-run / white variance velocity "
+            "7, 11.5, 1; gyro 2.5, 1, 1:") in both
+    gyro = line(gyro_correlation_time=(2.5, 1.0, 1.0))
+    assert "gyro errors correlated in time (long-run / white variance gyro 2.5, 1, 1:" in gyro
+    assert "velocity errors correlated" not in gyro
