@@ -36,13 +36,12 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from vislam.ekf.geometry import hat, se3_inv, so3_exp
 from vislam.ekf.model import EXTRINSIC_COMPONENTS
 from vislam.ekf.errors import EstimationError
-from vislam.graph.marginals import whitened_system
-from vislam.graph.pose_conversions import X, estimation_error, to_pose3
+from vislam.graph.marginals import information_solver, whitened_system
+from vislam.graph.pose_conversions import X, to_pose3
 
 #: Standard deviation of the weak prior around the current value, per component of theta
 #: (m, m, m, rad, rad, rad): it only keeps an unobservable direction finite.
@@ -107,6 +106,7 @@ class ExtrinsicSystem:
     b: np.ndarray  # (rows,) whitened right-hand side (minus the whitened error)
     stereo: slice  # the rows of the stereo factors, 3 per row of ``problem.rows``
     A_t: np.ndarray  # (3N, 6) whitened Jacobian of the stereo rows on theta (EXTRINSIC_JACOBIAN)
+    keys: list  # the variables of A's column blocks, sorted (WhitenedSystem.keys)
 
 
 def linear_system(solution, cam_T_imu: np.ndarray) -> ExtrinsicSystem:
@@ -133,7 +133,8 @@ def linear_system(solution, cam_T_imu: np.ndarray) -> ExtrinsicSystem:
     in_pose = (local >= 0) & (local < 6)
     J_pose = np.zeros((3 * N, 6))  # each stereo row's whitened Jacobian on its pose
     np.add.at(J_pose, (A_st.row[in_pose], local[in_pose]), A_st.data[in_pose])
-    return ExtrinsicSystem(A=A, b=b, stereo=stereo, A_t=J_pose @ theta_map(cam_T_imu))
+    return ExtrinsicSystem(A=A, b=b, stereo=stereo, A_t=J_pose @ theta_map(cam_T_imu),
+                           keys=system.keys)
 
 
 def extrinsic_step(solution, cam_T_imu: np.ndarray) -> ExtrinsicStep:
@@ -141,13 +142,13 @@ def extrinsic_step(solution, cam_T_imu: np.ndarray) -> ExtrinsicStep:
     (:class:`graph.smoother.SmootherSolution`, solved with ``cam_T_imu``); module docstring."""
     system = linear_system(solution, cam_T_imu)
     A, b, stereo, A_t = system.A, system.b, system.stereo, system.A_t
-    H = (A.T @ A).tocsc()
     B = np.asarray(A[stereo].T @ A_t)  # (n, 6) A_x^T A_t
     rhs_x = np.asarray(A.T @ b)
     try:
-        Y = spla.splu(H, permc_spec="COLAMD").solve(np.column_stack([B, rhs_x]))
-    except RuntimeError as exc:
-        raise estimation_error(exc, "solving for the extrinsic") from None
+        posterior_of = information_solver(A, system.keys, solution.poses.shape[0])
+    except EstimationError as exc:
+        raise EstimationError(f"extrinsic: {exc}") from None
+    Y = posterior_of.solve(np.column_stack([B, rhs_x]))  # H^-1 [A_x^T A_t, A^T b]
     S = A_t.T @ A_t - B.T @ Y[:, :6]
     S = 0.5 * (S + S.T)
     g = A_t.T @ b[stereo] - B.T @ Y[:, 6]

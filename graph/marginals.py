@@ -93,42 +93,50 @@ def _information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_fram
     return (system.A.T @ system.A).tocsr(), 3 * len(tracks)
 
 
-def schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
-                    tracks: np.ndarray, n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
-    """Pose covariances (T, 6, 6) in the Estimate convention and landmark covariances
-    (n_tracks, 3, 3) (NaN for tracks not in ``tracks``); see the module docstring.
+@dataclass
+class LandmarksEliminated:
+    """An information matrix ``H`` ordered [landmarks, poses] with its landmarks eliminated in
+    closed form (steps 2-3 of the module docstring): ``A_l = H_ll^-1`` per landmark, ``H_lp``
+    and the banded Cholesky factor ``Lb`` of the reduced pose system ``S`` (``ab`` its lower
+    band, ``w`` the band's width). :meth:`solve` gives ``H^-1 B`` exactly, at the cost of
+    banded triangular solves instead of a sparse LU of the whole ``H``."""
 
-    Raises :class:`ekf.errors.EstimationError` naming the variable when the information
-    matrix is not positive definite there. BLAS is pinned to one thread: the recursion works
-    on small blocks, where multi-threaded OpenBLAS is many times slower (DESIGN.md)."""
-    with threadpool_limits(limits=1, user_api="blas"):
-        pose_cov, landmark_cov = _schur_marginals(graph, values, n_frames, tracks, n_tracks)
-    return gtsam_cov_to_estimate(pose_cov), landmark_cov
+    H_ll: np.ndarray  # (n_lm, 3, 3)
+    A_l: np.ndarray  # (n_lm, 3, 3)
+    A_blocks: sp.csr_matrix  # block-diagonal A_l (3 n_lm, 3 n_lm)
+    H_lp: sp.csr_matrix  # (3 n_lm, 6 T)
+    ab: np.ndarray  # S's lower band (w + 1, 6 T)
+    Lb: np.ndarray  # its Cholesky factor, same layout
+    w: int
+
+    @property
+    def n_l(self) -> int:
+        return self.H_lp.shape[0]
+
+    def pose_solve(self, B_p: np.ndarray) -> np.ndarray:
+        """``S^-1 B_p``: ``H^-1 B`` for a ``B`` that is zero on the landmark rows, read on the
+        pose rows only (the pose block of ``H^-1`` is ``S^-1``); ``B_p`` (6 T,) or (6 T, m)."""
+        return scipy.linalg.cho_solve_banded((self.Lb, True), np.asarray(B_p, dtype=float),
+                                             check_finite=False)
+
+    def solve(self, B: np.ndarray) -> np.ndarray:
+        """``H^-1 B`` for ``B`` (n,) or (n, m), rows ordered as ``H``'s columns."""
+        B = np.asarray(B, dtype=float)
+        b_l, b_p = B[:self.n_l], B[self.n_l:]
+        t = self.A_blocks @ b_l
+        y_p = self.pose_solve(b_p - self.H_lp.T @ t)
+        return np.concatenate([t - self.A_blocks @ (self.H_lp @ y_p), y_p])
 
 
-def pose_chain_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                           n_frames: int, tracks: np.ndarray, with_log_det: bool = False):
-    """The marginal covariances of the poses (T, 6, 6) and of consecutive poses' cross terms
-    ``Cov(x_k, x_{k+1})`` (T-1, 6, 6), both in GTSAM's rotation-first right perturbation (the
-    entries of the Takahashi recursion next to the diagonal; what EM needs for the expected
-    motion residuals, :mod:`graph.identification`). ``with_log_det``: also ``log det H`` of the
-    whole information matrix (the Laplace term of the likelihood)."""
-    with threadpool_limits(limits=1, user_api="blas"):
-        pose_cov, _, pair_cov, log_det = _schur_marginals(
-            graph, values, n_frames, tracks, int(np.max(tracks, initial=-1)) + 1, pairs=True,
-            landmarks=False)
-    return (pose_cov, pair_cov, log_det) if with_log_det else (pose_cov, pair_cov)
-
-
-def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
-                    tracks: np.ndarray, n_tracks: int, pairs: bool = False,
-                    landmarks: bool = True):
-    """Pose (GTSAM convention unless converted by the caller) and landmark marginals; with
-    ``pairs`` also the cross-covariances of consecutive poses (GTSAM convention). Without
-    ``landmarks`` the landmark covariances are left NaN (not computed)."""
+def eliminate_landmarks(H: sp.spmatrix, n_l: int, n_frames: int,
+                        tracks: np.ndarray) -> LandmarksEliminated:
+    """:class:`LandmarksEliminated` of ``H`` (columns [landmarks of ``tracks``, sorted, 3 each;
+    ``n_frames`` poses, 6 each], ``n_l`` the landmark columns). Raises
+    :class:`ekf.errors.EstimationError` naming the variable where ``H`` is not positive
+    definite."""
+    H = sp.csr_matrix(H)
     tracks = np.sort(np.asarray(tracks, dtype=np.int64))
-    H, n_l = _information(graph, values, n_frames, tracks)
-    n_lm = len(tracks)
+    n_lm = n_l // 3
     # --- landmark blocks, inverted in closed form ------------------------------------------
     b = np.arange(n_lm)
     r = (3 * b[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
@@ -167,6 +175,62 @@ def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_
         raise EstimationError(
             f"marginals: the pose information matrix is not positive definite{where} "
             f"(an under-constrained pose)") from None
+    return LandmarksEliminated(H_ll, A_l, A_blocks, H_lp, ab, Lb, w)
+
+
+def information_solver(A: sp.spmatrix, keys: list, n_frames: int) -> LandmarksEliminated:
+    """``H = A^T A`` of a whitened Jacobian ``A`` (:class:`WhitenedSystem`) whose columns are
+    the variables ``keys``, sorted: landmarks, then the poses ``0..n_frames-1`` and nothing
+    else; with its landmarks eliminated. ``.solve(B)`` is ``H^-1 B`` (the Laplace posterior
+    covariance times ``B``)."""
+    poses = [X(k) for k in range(n_frames)]
+    n_lm = len(keys) - n_frames
+    if n_lm < 0 or list(keys[n_lm:]) != poses or any(
+            chr(gtsam.Symbol(int(k)).chr()) != "l" for k in keys[:n_lm]):
+        raise EstimationError("the graph's variables are not the expected poses and landmarks")
+    tracks = np.array([gtsam.Symbol(int(k)).index() for k in keys[:n_lm]], dtype=np.int64)
+    return eliminate_landmarks((A.T @ A).tocsr(), 3 * n_lm, n_frames, tracks)
+
+
+def schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
+                    tracks: np.ndarray, n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pose covariances (T, 6, 6) in the Estimate convention and landmark covariances
+    (n_tracks, 3, 3) (NaN for tracks not in ``tracks``); see the module docstring.
+
+    Raises :class:`ekf.errors.EstimationError` naming the variable when the information
+    matrix is not positive definite there. BLAS is pinned to one thread: the recursion works
+    on small blocks, where multi-threaded OpenBLAS is many times slower (DESIGN.md)."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        pose_cov, landmark_cov = _schur_marginals(graph, values, n_frames, tracks, n_tracks)
+    return gtsam_cov_to_estimate(pose_cov), landmark_cov
+
+
+def pose_chain_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                           n_frames: int, tracks: np.ndarray, with_log_det: bool = False):
+    """The marginal covariances of the poses (T, 6, 6) and of consecutive poses' cross terms
+    ``Cov(x_k, x_{k+1})`` (T-1, 6, 6), both in GTSAM's rotation-first right perturbation (the
+    entries of the Takahashi recursion next to the diagonal; what EM needs for the expected
+    motion residuals, :mod:`graph.identification`). ``with_log_det``: also ``log det H`` of the
+    whole information matrix (the Laplace term of the likelihood)."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        pose_cov, _, pair_cov, log_det = _schur_marginals(
+            graph, values, n_frames, tracks, int(np.max(tracks, initial=-1)) + 1, pairs=True,
+            landmarks=False)
+    return (pose_cov, pair_cov, log_det) if with_log_det else (pose_cov, pair_cov)
+
+
+def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
+                    tracks: np.ndarray, n_tracks: int, pairs: bool = False,
+                    landmarks: bool = True):
+    """Pose (GTSAM convention unless converted by the caller) and landmark marginals; with
+    ``pairs`` also the cross-covariances of consecutive poses (GTSAM convention). Without
+    ``landmarks`` the landmark covariances are left NaN (not computed)."""
+    tracks = np.sort(np.asarray(tracks, dtype=np.int64))
+    H, n_l = _information(graph, values, n_frames, tracks)
+    n_lm = len(tracks)
+    reduced = eliminate_landmarks(H, n_l, n_frames, tracks)
+    H_ll, A_l, H_lp, ab, Lb, w = reduced.H_ll, reduced.A_l, reduced.H_lp, reduced.ab, reduced.Lb, reduced.w
+    n = 6 * n_frames
 
     # L's envelope, in poses: the last pose whose rows reach pose p (have a nonzero of S in a
     # column at or before p); the Takahashi step at p needs Sigma over poses p+1..reach[p] only.

@@ -56,13 +56,12 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-import scipy.sparse.linalg as spla
 from scipy.optimize import nnls
 from scipy.stats import chi2
 
 from vislam.ekf.errors import EstimationError
-from vislam.graph.marginals import whitened_system
-from vislam.graph.pose_conversions import X, interval_jacobians, to_pose3
+from vislam.graph.marginals import information_solver, whitened_system
+from vislam.graph.pose_conversions import interval_jacobians, to_pose3
 
 log = logging.getLogger(__name__)
 
@@ -180,23 +179,21 @@ def block_statistics(solution, blocks: list[tuple[int, int]]) -> BlockStatistics
     """:class:`BlockStatistics` of a solved smoother (:class:`graph.smoother.SmootherSolution`)."""
     system = whitened_system(solution.problem.graph, solution.values,
                              "linearising for the block residuals")
-    H = (system.A.T @ system.A).tocsc()
     try:
-        factor = spla.splu(H)
-    except RuntimeError as exc:
-        raise EstimationError(f"motion correlation: the information matrix is singular ({exc})") from None
-    n = H.shape[0]
-    C = np.zeros((6 * len(blocks), n))
+        posterior_of = information_solver(system.A, system.keys, solution.poses.shape[0])
+    except EstimationError as exc:
+        raise EstimationError(f"motion correlation: {exc}") from None
+    C = np.zeros((6 * len(blocks), 6 * solution.poses.shape[0]))  # on the poses (X(k): 6k..)
     eps = np.zeros((len(blocks), 6))
     design = np.zeros((6, 6))
     for b, (s, e) in enumerate(blocks):
         eps[b], Cs = block_residual(solution.poses, solution.deltas, s, e)
         rows = slice(6 * b, 6 * b + 6)
-        C[rows, system.offsets[X(s)]:system.offsets[X(s)] + 6] = Cs
-        C[rows, system.offsets[X(e)]:system.offsets[X(e)] + 6] = np.eye(6)
+        C[rows, 6 * s:6 * s + 6] = Cs
+        C[rows, 6 * e:6 * e + 6] = np.eye(6)
         A = transport_jacobians(solution.deltas, solution.twist, solution.tau, s, e)
         design += np.sum(A * A, axis=0)
-    Y = factor.solve(C.T)
+    Y = posterior_of.pose_solve(C.T)  # (H^-1)_pp C^T
     posterior = np.einsum("ij,ji->i", C, Y)  # diag of C H^-1 C^T
     expected = np.sum(eps * eps, axis=0) + posterior.reshape(len(blocks), 6).sum(axis=0)
     return BlockStatistics(expected, design, len(blocks))

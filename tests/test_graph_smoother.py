@@ -6,6 +6,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
+import scipy.sparse.linalg
 
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import EstimationError, InputError
@@ -15,7 +16,7 @@ from vislam.eval.simulate import SimConfig, simulate
 from vislam.graph.factors import (NoiseModels, build_graph, keep_multi_observed, relative_motions,
                            triangulate_landmarks, usable_rows)
 from vislam.graph.isam2 import run_fixed_lag, run_isam2
-from vislam.graph.marginals import gtsam_marginals, schur_marginals
+from vislam.graph.marginals import gtsam_marginals, information_solver, schur_marginals, whitened_system
 from vislam.graph.pose_conversions import L, X, estimation_error
 from vislam.graph.settings import SmootherSettings
 from vislam.graph.smoother import run_smoother, solve_smoother
@@ -175,6 +176,30 @@ def test_schur_marginals_equal_gtsam_marginals():
         assert np.array_equal(np.isfinite(a), np.isfinite(b))
         ok = np.isfinite(b)
         np.testing.assert_allclose(a[ok], b[ok], rtol=1e-6, atol=1e-12 * np.abs(b[ok]).max())
+
+
+def test_information_solver_solves_the_whole_information_matrix():
+    """``information_solver(A, keys, T).solve(B)`` (landmarks eliminated, banded Cholesky) is
+    ``(A^T A)^-1 B`` from a sparse LU of the whole matrix, landmark and pose rows alike; a graph
+    with another variable is refused."""
+    sim = simulate(SimConfig(seed=5, n_frames=40))
+    problem = _small_graph(sim)
+    T = sim.sequence.n_frames
+    system = whitened_system(problem.graph, problem.values, "test")
+    H = (system.A.T @ system.A).tocsc()
+    B = np.random.default_rng(0).standard_normal((H.shape[0], 7))
+    expected = scipy.sparse.linalg.splu(H).solve(B)
+    got = information_solver(system.A, system.keys, T).solve(B)
+    np.testing.assert_allclose(got, expected, rtol=1e-7, atol=1e-9 * np.abs(expected).max())
+    np.testing.assert_allclose(information_solver(system.A, system.keys, T).solve(B[:, 0]),
+                               expected[:, 0], rtol=1e-7, atol=1e-9 * np.abs(expected).max())
+    n_p = 6 * T  # a right-hand side on the poses only: the pose block of H^-1 is S^-1
+    B_p = np.vstack([np.zeros((H.shape[0] - n_p, 7)), B[-n_p:]])
+    np.testing.assert_allclose(information_solver(system.A, system.keys, T).pose_solve(B[-n_p:]),
+                               scipy.sparse.linalg.splu(H).solve(B_p)[-n_p:], rtol=1e-7,
+                               atol=1e-9 * np.abs(expected).max())
+    with pytest.raises(EstimationError, match="expected poses and landmarks"):
+        information_solver(system.A, system.keys, T - 1)
 
 
 def test_cheirality_and_outliers_are_removed(noise_free):
