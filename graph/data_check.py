@@ -270,7 +270,7 @@ def interval_residuals(solution, config: FilterConfig) -> tuple[np.ndarray, np.n
     from vislam.graph.factors import fix_bias
     from vislam.graph.gyro_bias import corrected_deltas
     from vislam.graph.identification import motion_residuals
-    from vislam.graph.marginals import pose_chain_covariances
+    from vislam.graph.marginals import linearise, pose_chain_covariances
 
     problem, values = solution.problem, solution.values
     graph, deltas = problem.graph, solution.deltas
@@ -286,7 +286,8 @@ def interval_residuals(solution, config: FilterConfig) -> tuple[np.ndarray, np.n
     R = np.zeros((n, 6, 6))
     if n == 0:
         return w, R, W
-    pose_cov, pair_cov = pose_chain_covariances(graph, values, T, problem.landmark_tracks)
+    _, reduced = linearise(graph, values, T, "linearising for the interval residuals")
+    pose_cov, pair_cov = pose_chain_covariances(reduced, T)
     w, cw, _ = motion_residuals(solution.poses, deltas, solution.twist, solution.tau,
                                 pose_cov, pair_cov)
     R = W - cw

@@ -40,7 +40,6 @@ import scipy.sparse as sp
 from vislam.ekf.geometry import hat, se3_inv, so3_exp
 from vislam.ekf.model import EXTRINSIC_COMPONENTS
 from vislam.ekf.errors import EstimationError
-from vislam.graph.marginals import information_solver, whitened_system
 from vislam.graph.pose_conversions import X, to_pose3
 
 #: Standard deviation of the weak prior around the current value, per component of theta
@@ -114,7 +113,7 @@ def linear_system(solution, cam_T_imu: np.ndarray) -> ExtrinsicSystem:
     problem = solution.problem
     rows = problem.rows
     T = solution.poses.shape[0]
-    system = whitened_system(problem.graph, solution.values, "linearising for the extrinsic")
+    system, _ = solution.linearised()
     A, b, offsets = system.A, system.b, system.offsets
     n_rows = A.shape[0]
     # The stereo factors follow the pose prior and the T-1 motion factors (graph.factors).
@@ -144,10 +143,7 @@ def extrinsic_step(solution, cam_T_imu: np.ndarray) -> ExtrinsicStep:
     A, b, stereo, A_t = system.A, system.b, system.stereo, system.A_t
     B = np.asarray(A[stereo].T @ A_t)  # (n, 6) A_x^T A_t
     rhs_x = np.asarray(A.T @ b)
-    try:
-        posterior_of = information_solver(A, system.keys, solution.poses.shape[0])
-    except EstimationError as exc:
-        raise EstimationError(f"extrinsic: {exc}") from None
+    _, posterior_of = solution.linearised()
     Y = posterior_of.solve(np.column_stack([B, rhs_x]))  # H^-1 [A_x^T A_t, A^T b]
     S = A_t.T @ A_t - B.T @ Y[:, :6]
     S = 0.5 * (S + S.T)

@@ -226,8 +226,8 @@ def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
 
     problem, values = solution.problem, solution.values
     T = solution.poses.shape[0]
-    pose_cov, pair_cov, log_det_h = pose_chain_covariances(
-        problem.graph, values, T, problem.landmark_tracks, with_log_det=True)
+    pose_cov, pair_cov, log_det_h = pose_chain_covariances(solution.linearised()[1], T,
+                                                           with_log_det=True)
     W_g = estimate_cov_to_gtsam(config.velocity_cov)  # what graph.factors.relative_motions uses
     W_inv = np.linalg.inv(W_g)
     w, cw, scale = motion_residuals(solution.poses, solution.deltas, solution.twist,

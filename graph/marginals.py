@@ -108,6 +108,7 @@ class LandmarksEliminated:
     ab: np.ndarray  # S's lower band (w + 1, 6 T)
     Lb: np.ndarray  # its Cholesky factor, same layout
     w: int
+    tracks: np.ndarray  # the landmarks' tracks, sorted (H's landmark blocks, in order)
 
     @property
     def n_l(self) -> int:
@@ -175,7 +176,7 @@ def eliminate_landmarks(H: sp.spmatrix, n_l: int, n_frames: int,
         raise EstimationError(
             f"marginals: the pose information matrix is not positive definite{where} "
             f"(an under-constrained pose)") from None
-    return LandmarksEliminated(H_ll, A_l, A_blocks, H_lp, ab, Lb, w)
+    return LandmarksEliminated(H_ll, A_l, A_blocks, H_lp, ab, Lb, w, tracks)
 
 
 def information_solver(A: sp.spmatrix, keys: list, n_frames: int) -> LandmarksEliminated:
@@ -200,35 +201,49 @@ def schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_f
     Raises :class:`ekf.errors.EstimationError` naming the variable when the information
     matrix is not positive definite there. BLAS is pinned to one thread: the recursion works
     on small blocks, where multi-threaded OpenBLAS is many times slower (DESIGN.md)."""
+    tracks = np.sort(np.asarray(tracks, dtype=np.int64))
     with threadpool_limits(limits=1, user_api="blas"):
-        pose_cov, landmark_cov = _schur_marginals(graph, values, n_frames, tracks, n_tracks)
+        H, n_l = _information(graph, values, n_frames, tracks)
+        pose_cov, landmark_cov = _schur_marginals(eliminate_landmarks(H, n_l, n_frames, tracks),
+                                                  n_frames, n_tracks)
     return gtsam_cov_to_estimate(pose_cov), landmark_cov
 
 
-def pose_chain_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                           n_frames: int, tracks: np.ndarray, with_log_det: bool = False):
+def pose_chain_covariances(reduced: LandmarksEliminated, n_frames: int,
+                           with_log_det: bool = False):
     """The marginal covariances of the poses (T, 6, 6) and of consecutive poses' cross terms
-    ``Cov(x_k, x_{k+1})`` (T-1, 6, 6), both in GTSAM's rotation-first right perturbation (the
-    entries of the Takahashi recursion next to the diagonal; what EM needs for the expected
-    motion residuals, :mod:`graph.identification`). ``with_log_det``: also ``log det H`` of the
-    whole information matrix (the Laplace term of the likelihood)."""
+    ``Cov(x_k, x_{k+1})`` (T-1, 6, 6) of an information matrix with its landmarks eliminated
+    (:func:`linearise`), both in GTSAM's rotation-first right perturbation (the entries of the
+    Takahashi recursion next to the diagonal; what EM needs for the expected motion residuals,
+    :mod:`graph.identification`). ``with_log_det``: also ``log det H`` of the whole information
+    matrix (the Laplace term of the likelihood)."""
     with threadpool_limits(limits=1, user_api="blas"):
         pose_cov, _, pair_cov, log_det = _schur_marginals(
-            graph, values, n_frames, tracks, int(np.max(tracks, initial=-1)) + 1, pairs=True,
+            reduced, n_frames, int(np.max(reduced.tracks, initial=-1)) + 1, pairs=True,
             landmarks=False)
     return (pose_cov, pair_cov, log_det) if with_log_det else (pose_cov, pair_cov)
 
 
-def _schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
-                    tracks: np.ndarray, n_tracks: int, pairs: bool = False,
-                    landmarks: bool = True):
-    """Pose (GTSAM convention unless converted by the caller) and landmark marginals; with
+def linearise(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
+              doing: str) -> tuple[WhitenedSystem, LandmarksEliminated]:
+    """GTSAM's linearisation of a graph on landmarks and poses ``0..n_frames-1`` at ``values``
+    and its information matrix with the landmarks eliminated (:func:`information_solver`);
+    ``doing`` names the step in an EstimationError."""
+    system = whitened_system(graph, values, doing)
+    try:
+        return system, information_solver(system.A, system.keys, n_frames)
+    except EstimationError as exc:
+        raise EstimationError(f"{doing}: {exc}") from None
+
+
+def _schur_marginals(reduced: LandmarksEliminated, n_frames: int, n_tracks: int,
+                     pairs: bool = False, landmarks: bool = True):
+    """Pose (GTSAM convention unless converted by the caller) and landmark marginals (steps 3-4
+    of the module docstring) of an information matrix with its landmarks eliminated; with
     ``pairs`` also the cross-covariances of consecutive poses (GTSAM convention). Without
     ``landmarks`` the landmark covariances are left NaN (not computed)."""
-    tracks = np.sort(np.asarray(tracks, dtype=np.int64))
-    H, n_l = _information(graph, values, n_frames, tracks)
+    tracks = reduced.tracks
     n_lm = len(tracks)
-    reduced = eliminate_landmarks(H, n_l, n_frames, tracks)
     H_ll, A_l, H_lp, ab, Lb, w = reduced.H_ll, reduced.A_l, reduced.H_lp, reduced.ab, reduced.Lb, reduced.w
     n = 6 * n_frames
 

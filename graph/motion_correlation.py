@@ -59,8 +59,6 @@ import numpy as np
 from scipy.optimize import nnls
 from scipy.stats import chi2
 
-from vislam.ekf.errors import EstimationError
-from vislam.graph.marginals import information_solver, whitened_system
 from vislam.graph.pose_conversions import interval_jacobians, to_pose3
 
 log = logging.getLogger(__name__)
@@ -177,12 +175,7 @@ def block_residual(poses: np.ndarray, deltas: np.ndarray, s: int, e: int) -> tup
 
 def block_statistics(solution, blocks: list[tuple[int, int]]) -> BlockStatistics:
     """:class:`BlockStatistics` of a solved smoother (:class:`graph.smoother.SmootherSolution`)."""
-    system = whitened_system(solution.problem.graph, solution.values,
-                             "linearising for the block residuals")
-    try:
-        posterior_of = information_solver(system.A, system.keys, solution.poses.shape[0])
-    except EstimationError as exc:
-        raise EstimationError(f"motion correlation: {exc}") from None
+    _, posterior_of = solution.linearised()
     C = np.zeros((6 * len(blocks), 6 * solution.poses.shape[0]))  # on the poses (X(k): 6k..)
     eps = np.zeros((len(blocks), 6))
     design = np.zeros((6, 6))

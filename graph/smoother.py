@@ -63,7 +63,7 @@ from vislam.graph.factors import (
 from vislam.graph.gyro_bias import BIAS_KEY, GyroBiasModel, corrected_deltas, estimate_bias
 from vislam.ekf.numerics import NumericalGuard
 from vislam.ekf.runner import finish_estimate, prepare_sequence
-from vislam.graph.marginals import batch_marginals
+from vislam.graph.marginals import batch_marginals, linearise
 from vislam.graph.pose_conversions import estimation_error, named_error
 from vislam.graph.settings import INITIALISERS, LINEAR_SOLVERS, SmootherSettings
 from vislam.graph.twist_smoothness import smoothness_sigma
@@ -240,10 +240,21 @@ class SmootherSolution:
     errors: list
     n_outliers: int
     n_cheirality: int
+    #: (WhitenedSystem, LandmarksEliminated) at ``values``, once computed (:meth:`linearised`)
+    _linearised: tuple | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def calibration(self):
         return self.cleaned.calibration
+
+    def linearised(self):
+        """GTSAM's linearisation of the graph at the solution and its information matrix with
+        the landmarks eliminated (:func:`graph.marginals.linearise`), computed once: EM's
+        E-step, the extrinsic step and the motion-correlation blocks read the same one."""
+        if self._linearised is None:
+            self._linearised = linearise(self.problem.graph, self.values, self.poses.shape[0],
+                                         "linearising the smoother's solution")
+        return self._linearised
 
 
 def solve_smoother(seq: Sequence, config: FilterConfig = FilterConfig(),
