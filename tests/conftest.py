@@ -6,6 +6,7 @@ CI (``CI=true``), where a missing drive is a failure: CI must never pass by skip
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from pathlib import Path
 
@@ -96,3 +97,21 @@ def model_cache(tmp_path_factory):
         os.environ.pop("VISLAM_CACHE_DIR", None)
     else:
         os.environ["VISLAM_CACHE_DIR"] = previous
+
+
+@pytest.fixture(scope="session")
+def benchmark_script():
+    """``get(name)``: the script ``benchmarks/<name>.py`` loaded as a module (the scripts are
+    not a package), once per session."""
+    loaded = {}
+
+    def get(name: str):
+        if name not in loaded:
+            path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+            spec = importlib.util.spec_from_file_location(name, path)
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+            loaded[name] = module
+        return loaded[name]
+
+    return get

@@ -1,25 +1,13 @@
 """benchmarks/nees_breakdown.py: its per-stretch figures against what they are defined as."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.geometry import se3_exp
 from vislam.eval.groundtruth import GroundTruth
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "nees_breakdown.py"
 
-
-def _script():
-    spec = importlib.util.spec_from_file_location("nees_breakdown", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_breakdown_gives_each_stretch_its_nees_z2_and_yaw_drift():
+def test_breakdown_gives_each_stretch_its_nees_z2_and_yaw_drift(benchmark_script):
     """A drive whose estimate yaws away from the truth by 1e-3 rad a frame in its second half
     (covariance diag(sd^2)): the first stretch has no error; the second's NEES is the mean of
     (e / sd)^2 summed over axes, and its rotation increments' error sums to the drift."""
@@ -34,7 +22,7 @@ def test_breakdown_gives_each_stretch_its_nees_z2_and_yaw_drift():
                    n_updates=np.zeros(T, int), n_rejected=np.zeros(T, int),
                    n_initialised=np.zeros(T, int))
     gt = GroundTruth(frames=np.arange(T), poses=truth, source="test")
-    first, second = _script().breakdown(est, gt, 2)
+    first, second = benchmark_script("nees_breakdown").breakdown(est, gt, 2)
     assert first["nees"] == 0.0 and np.allclose(first["rotation_increment_error"], 0.0)
     e = yaw[21:] / sd[5]
     assert np.isclose(second["nees"], np.mean(e**2))

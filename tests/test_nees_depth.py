@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +13,6 @@ from vislam.eval.cli import main
 from vislam.eval.simulate import DEFAULT_SIM, simulate
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-SWEEP = Path(__file__).resolve().parents[1] / "benchmarks" / "nees_depth_sweep.py"
 
 
 def _observed_depths(result) -> np.ndarray:
@@ -72,11 +69,8 @@ def test_range_that_is_no_number_is_a_usage_error(capsys):
 
 
 @pytest.fixture(scope="module")
-def sweep():
-    spec = importlib.util.spec_from_file_location("nees_depth_sweep", SWEEP)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def sweep(benchmark_script):
+    return benchmark_script("nees_depth_sweep")
 
 
 def test_depth_sweep_end_to_end(sweep, tmp_path, capsys):

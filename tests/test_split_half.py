@@ -1,8 +1,6 @@
 """benchmarks/split_half.py: the halves it makes and the yaw figures it reports."""
 
 import dataclasses
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 from scipy.stats import chi2
@@ -12,16 +10,6 @@ from vislam.ekf.estimate import Estimate
 from vislam.ekf.geometry import se3_exp
 from vislam.eval.groundtruth import GroundTruth
 from vislam.eval.simulate import DEFAULT_SIM, simulate
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "split_half.py"
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("split_half", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
 
 def _rows(seq):
     frame = np.repeat(np.arange(seq.n_frames), np.diff(seq.obs.frame_ptr))
@@ -37,16 +25,16 @@ def _estimate(poses, yaw_sd):
                     n_rejected=np.zeros(T, int), n_initialised=np.zeros(T, int))
 
 
-def test_the_halves_split_the_observations_by_track_parity():
+def test_the_halves_split_the_observations_by_track_parity(benchmark_script):
     seq = simulate(dataclasses.replace(DEFAULT_SIM, n_frames=30)).sequence
-    split = _script().split_tracks
+    split = benchmark_script("split_half").split_tracks
     even, odd = _rows(split(seq, 0)), _rows(split(seq, 1))
     assert even and odd and not set(even) & set(odd)
     assert {**even, **odd} == _rows(seq)
     assert all(t % 2 == 0 for _, t in even) and all(t % 2 == 1 for _, t in odd)
 
 
-def test_compare_reports_each_yaw_error_and_the_halves_difference():
+def test_compare_reports_each_yaw_error_and_the_halves_difference(benchmark_script):
     """Estimates that yaw away from the truth by known amounts: 'all' by 1e-3 rad a frame,
     'even' by 2e-3 and 'odd' by -1e-3; at each stretch's end the errors are those (error =
     Log(R_est^T R_true), so minus the yaw added), the difference even - odd is Log(R_even^T R_odd)
@@ -61,7 +49,7 @@ def test_compare_reports_each_yaw_error_and_the_halves_difference():
 
     ests = {"all": _estimate(yawed(1e-3), 0.01), "even": _estimate(yawed(2e-3), 0.02),
             "odd": _estimate(yawed(-1e-3), 0.03)}
-    rows = _script().compare(ests, GroundTruth(frames=frames, poses=truth, source="test"), 3)
+    rows = benchmark_script("split_half").compare(ests, GroundTruth(frames=frames, poses=truth, source="test"), 3)
     assert [r["to_s"] for r in rows] == [1.0, 2.0, 3.0]
     for r in rows:
         k = round(10 * r["to_s"])
@@ -71,12 +59,12 @@ def test_compare_reports_each_yaw_error_and_the_halves_difference():
         assert np.isclose(r["all_sd"], 0.01) and np.isclose(r["difference_sd"], np.hypot(0.02, 0.03))
 
 
-def test_on_white_simulated_pixels_the_halves_agree_within_their_sd():
+def test_on_white_simulated_pixels_the_halves_agree_within_their_sd(benchmark_script):
     """The simulator's pixel noise is white and independent between tracks: each half knows its
     heading less well than all tracks together, and the halves' yaw difference, normalised by
     its sd were they independent (an upper bound: they share the velocities), has a mean square
     within the chi-square's 99.9 % point over two drives' stretches."""
-    script, z2 = _script(), []
+    script, z2 = benchmark_script("split_half"), []
     for seed in (0, 1):
         result = simulate(dataclasses.replace(DEFAULT_SIM, n_frames=200, seed=seed))
         gt = GroundTruth(frames=np.arange(result.sequence.n_frames), poses=result.poses,
