@@ -105,7 +105,6 @@ class ExtrinsicSystem:
     b: np.ndarray  # (rows,) whitened right-hand side (minus the whitened error)
     stereo: slice  # the rows of the stereo factors, 3 per row of ``problem.rows``
     A_t: np.ndarray  # (3N, 6) whitened Jacobian of the stereo rows on theta (EXTRINSIC_JACOBIAN)
-    keys: list  # the variables of A's column blocks, sorted (WhitenedSystem.keys)
 
 
 def linear_system(solution, cam_T_imu: np.ndarray) -> ExtrinsicSystem:
@@ -132,8 +131,7 @@ def linear_system(solution, cam_T_imu: np.ndarray) -> ExtrinsicSystem:
     in_pose = (local >= 0) & (local < 6)
     J_pose = np.zeros((3 * N, 6))  # each stereo row's whitened Jacobian on its pose
     np.add.at(J_pose, (A_st.row[in_pose], local[in_pose]), A_st.data[in_pose])
-    return ExtrinsicSystem(A=A, b=b, stereo=stereo, A_t=J_pose @ theta_map(cam_T_imu),
-                           keys=system.keys)
+    return ExtrinsicSystem(A=A, b=b, stereo=stereo, A_t=J_pose @ theta_map(cam_T_imu))
 
 
 def extrinsic_step(solution, cam_T_imu: np.ndarray) -> ExtrinsicStep:

@@ -82,17 +82,6 @@ def whitened_system(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     return WhitenedSystem(A, b, keys, offsets)
 
 
-def _information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
-                 tracks: np.ndarray) -> tuple[sp.csr_matrix, int]:
-    """Information matrix (sparse) with columns ordered [landmarks of ``tracks`` (sorted), poses]."""
-    system = whitened_system(graph, values, "linearising for marginal covariances")
-    # 'l' keys (by index) sort before 'x' keys
-    expected = [L(int(j)) for j in np.sort(tracks)] + [X(k) for k in range(n_frames)]
-    if system.keys != sorted(expected) or sorted(expected) != expected:
-        raise EstimationError("marginals: the graph's variables are not the expected poses and landmarks")
-    return (system.A.T @ system.A).tocsr(), 3 * len(tracks)
-
-
 @dataclass
 class LandmarksEliminated:
     """An information matrix ``H`` ordered [landmarks, poses] with its landmarks eliminated in
@@ -188,7 +177,8 @@ def information_solver(A: sp.spmatrix, keys: list, n_frames: int) -> LandmarksEl
     n_lm = len(keys) - n_frames
     if n_lm < 0 or list(keys[n_lm:]) != poses or any(
             chr(gtsam.Symbol(int(k)).chr()) != "l" for k in keys[:n_lm]):
-        raise EstimationError("the graph's variables are not the expected poses and landmarks")
+        raise EstimationError("marginals: the graph's variables are not the expected poses and "
+                              "landmarks")
     tracks = np.array([gtsam.Symbol(int(k)).index() for k in keys[:n_lm]], dtype=np.int64)
     return eliminate_landmarks((A.T @ A).tocsr(), 3 * n_lm, n_frames, tracks)
 
@@ -201,11 +191,12 @@ def schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_f
     Raises :class:`ekf.errors.EstimationError` naming the variable when the information
     matrix is not positive definite there. BLAS is pinned to one thread: the recursion works
     on small blocks, where multi-threaded OpenBLAS is many times slower (DESIGN.md)."""
-    tracks = np.sort(np.asarray(tracks, dtype=np.int64))
+    _, reduced = linearise(graph, values, n_frames, "linearising for marginal covariances")
+    if not np.array_equal(reduced.tracks, np.sort(np.asarray(tracks, dtype=np.int64))):
+        raise EstimationError("marginals: the graph's variables are not the expected poses and "
+                              "landmarks")
     with threadpool_limits(limits=1, user_api="blas"):
-        H, n_l = _information(graph, values, n_frames, tracks)
-        pose_cov, landmark_cov = _schur_marginals(eliminate_landmarks(H, n_l, n_frames, tracks),
-                                                  n_frames, n_tracks)
+        pose_cov, landmark_cov = _schur_marginals(reduced, n_frames, n_tracks)
     return gtsam_cov_to_estimate(pose_cov), landmark_cov
 
 
@@ -228,12 +219,11 @@ def linearise(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames:
               doing: str) -> tuple[WhitenedSystem, LandmarksEliminated]:
     """GTSAM's linearisation of a graph on landmarks and poses ``0..n_frames-1`` at ``values``
     and its information matrix with the landmarks eliminated (:func:`information_solver`);
-    ``doing`` names the step in an EstimationError."""
+    ``doing`` names the step in GTSAM's errors. BLAS is pinned to one thread, as for the
+    marginals (:func:`schur_marginals`)."""
     system = whitened_system(graph, values, doing)
-    try:
+    with threadpool_limits(limits=1, user_api="blas"):
         return system, information_solver(system.A, system.keys, n_frames)
-    except EstimationError as exc:
-        raise EstimationError(f"{doing}: {exc}") from None
 
 
 def _schur_marginals(reduced: LandmarksEliminated, n_frames: int, n_tracks: int,
