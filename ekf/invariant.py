@@ -568,7 +568,7 @@ def _transport_inverse_depth(st: _State, ids: np.ndarray, x_prior: np.ndarray, o
     times the pose rows to the rows of slot j. Returns those rows ``C`` (3K, 6)."""
     R_a, p_a = st.anchor_R[ids], st.anchor_p[ids]
     C = np.zeros((st.lm_id.size, 3, 6))
-    C[ids] = idp.gauge_rows(st.landmarks[ids], R_a, p_a) - idp.gauge_rows(x_prior, R_a, p_a)
+    C[ids] = idp.gauge_rows_change(x_prior, st.landmarks[ids], R_a, p_a)
     C = C.reshape(-1, 6)  # every landmark row (zero for group ones): contiguous slices
     add_pose_rows(st.P, off, C)
     return C

@@ -161,6 +161,17 @@ def gauge_rows(x: np.ndarray, R_a: np.ndarray, p_a: np.ndarray) -> np.ndarray:
     return N
 
 
+def gauge_rows_change(x_from: np.ndarray, x_to: np.ndarray, R_a: np.ndarray,
+                      p_a: np.ndarray) -> np.ndarray:
+    """``gauge_rows(x_to) - gauge_rows(x_from)`` (n, 3, 6): how an update that moves
+    inverse-depth landmarks from ``x_from`` to ``x_to`` moves their gauge rows (ID-7), the
+    transport rows of the observability-constrained filters; both in one batched evaluation."""
+    n = x_from.shape[0]
+    N = gauge_rows(np.concatenate([x_to, x_from]), np.concatenate([R_a, R_a]),
+                   np.concatenate([p_a, p_a]))
+    return N[:n] - N[n:]
+
+
 def linearity_index(
     x: np.ndarray, var_rho: np.ndarray, R_a: np.ndarray, p_a: np.ndarray, centre: np.ndarray
 ) -> np.ndarray:

@@ -68,6 +68,7 @@ class JointState:
         self.bias = np.zeros(3)
         self.P = np.zeros((self.core, self.core))
         self.P[:6, :6] = config.initial_pose_cov
+        self.W = config.velocity_cov  # the twist noise of every prediction
         if config.gyro_bias:
             self.P[6:, 6:] = config.gyro_bias_sigma**2 * np.eye(3)
         self.lm_mean = np.zeros((0, 3))
@@ -136,12 +137,12 @@ class JointState:
         if config.gyro_bias:
             u_c, Phi, _ = bias_transition(tau, u, self.bias)
             Q = np.zeros((9, 9))
-            Q[:6, :6] = process_noise(tau, config.velocity_cov)
+            Q[:6, :6] = process_noise(tau, self.W)
             Q[6:, 6:] = config.gyro_bias_walk**2 * tau * np.eye(3)
         else:
             u_c = u
             Phi = prediction_jacobian(tau, u)
-            Q = process_noise(tau, config.velocity_cov)
+            Q = process_noise(tau, self.W)
         self.U = predict_mean(self.U, tau, u_c)
         P = self.P
         Pcc = Phi @ P[:c, :c] @ Phi.T + Q

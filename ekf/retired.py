@@ -60,7 +60,7 @@ def oc_transport_rows(dm: np.ndarray, x_prior: np.ndarray, x_new: np.ndarray, in
         C[eu, :, 3:] = hat(dm[eu]) @ U_prior[:3, :3].T
     if ids.size:
         R_a, p_a = anchor_R[ids], anchor_p[ids]
-        dN = idp.gauge_rows(x_prior[ids], R_a, p_a) - idp.gauge_rows(x_new[ids], R_a, p_a)
+        dN = idp.gauge_rows_change(x_new[ids], x_prior[ids], R_a, p_a)  # N(x-) - N(x+)
         C[ids] = dN @ adjoint(se3_inv(U_prior))
     return C
 

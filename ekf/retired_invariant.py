@@ -76,7 +76,7 @@ class InvariantRetired(RetiredLandmarks):
         pose = F[:, :6]
         if ids.size:
             R_a, p_a = self.anchor_R[ids], self.anchor_p[ids]
-            C = idp.gauge_rows(new[ids], R_a, p_a) - idp.gauge_rows(x_prior[ids], R_a, p_a)
+            C = idp.gauge_rows_change(x_prior[ids], new[ids], R_a, p_a)
             rows = (3 * ids[:, None] + np.arange(3)).ravel()
             pose[rows] += C.reshape(-1, 6)
         if C_active is not None:

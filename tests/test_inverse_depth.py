@@ -68,6 +68,9 @@ def test_jacobians_of_the_parameterisation(far):
 
         np.testing.assert_allclose(numeric_jacobian(moved, np.zeros(6), eps=1e-7), N[j], rtol=1e-5, atol=1e-9)
     assert np.all(np.isfinite(idp.gauge_rows(np.array([[0.1, 0.0, 0.0]]), R_a[:1], p_a[:1])))
+    moved_x = x + 1e-3 * rng.standard_normal(x.shape)  # the change an update makes, in one call
+    np.testing.assert_array_equal(idp.gauge_rows_change(x, moved_x, R_a, p_a),
+                                  idp.gauge_rows(moved_x, R_a, p_a) - N)
 
 
 def test_linearity_index():
