@@ -18,7 +18,7 @@ their standard deviation while both leave the truth by several. No model fitted 
 own pixels can see such an error, since every track agrees with it.
 
 Issue 13 (the smoother's NEES on shared 0027 is 21 against at most 12): from 76 s on, both
-halves are 0.04-0.06 rad off the truth in yaw (2.1-3.7 of their own standard deviations, 0.014-
+halves are 0.039-0.058 rad off the truth in yaw (2.1-3.7 of their own standard deviations, 0.014-
 0.019 rad; the even half -0.050, -0.058, -0.055 and the odd half -0.045, -0.047, -0.039 at 76,
 95 and 114 s), while they differ from each other by at most 0.016 rad at any stretch's end
 (sd 0.013-0.026): the drift is common to the tracks. The 2019 edition's independent tracker
