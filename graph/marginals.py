@@ -256,8 +256,12 @@ def _schur_marginals(reduced: LandmarksEliminated, n_frames: int, n_tracks: int,
     H_lp_csr = H_lp
     nnz_rows = np.repeat(np.arange(3 * n_lm), np.diff(H_lp_csr.indptr))
     entry_lm, entry_row = nnz_rows // 3, nnz_rows % 3
-    first_pose = np.full(n_lm, n_frames, dtype=np.int64)
-    np.minimum.at(first_pose, entry_lm, H_lp_csr.indices // 6)
+    # the first pose of each landmark: the smallest column of its three rows (none: n_frames)
+    row_first = np.full(3 * n_lm, 6 * n_frames, dtype=np.int64)
+    filled = np.flatnonzero(np.diff(H_lp_csr.indptr))
+    if filled.size:
+        row_first[filled] = np.minimum.reduceat(H_lp_csr.indices, H_lp_csr.indptr[filled])
+    first_pose = row_first.reshape(n_lm, 3).min(axis=1) // 6
     entry_col = H_lp_csr.indices - 6 * first_pose[entry_lm]
     lm_order = np.argsort(first_pose, kind="stable")
     group_start = np.searchsorted(first_pose[lm_order], np.arange(n_frames + 2))
