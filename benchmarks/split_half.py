@@ -14,8 +14,9 @@ How to read it. Errors that belong to the tracks (a tracker's noise, even when i
 each track) are independent between the halves: the halves then disagree with each other about
 as much as either disagrees with the truth. An error common to every track (the images'
 calibration, the ground truth) moves both halves together: they agree with each other within
-their standard deviation while both leave the truth by several. No model fitted to the drive's
-own pixels can see such an error, since every track agrees with it.
+their standard deviation while both leave the truth by several. The residuals show such an
+error only where it leaves a pattern across the image, as the radial lens term does
+(:mod:`graph.radial`); where every track agrees with it, they cannot.
 
 Issue 13 (the smoother's NEES on shared 0027 is 21 against at most 12): from 76 s on, both
 halves are 0.039-0.058 rad off the truth in yaw (2.1-3.7 of their own standard deviations, 0.014-
