@@ -37,8 +37,9 @@ from vislam.graph.settings import SmootherSettings
 
 log = logging.getLogger(__name__)
 
-#: Changes whenever the identification would give a different answer on the same input.
-IDENTIFICATION_VERSION = "2026-11-25.1"
+#: Changes whenever the identification would give a different answer on the same input, to a
+#: value never used before (so that no old cache entry can match it).
+IDENTIFICATION_VERSION = "2026-11-28.1"
 
 
 @dataclass
