@@ -155,3 +155,20 @@ def test_simulate_command_writes_the_velocity_correlation_and_refuses_a_bad_one(
                  "--velocity-correlation", "1.5"]) == 2
     assert "velocity_correlation" in capsys.readouterr().err
     assert not bad.exists() or not any(bad.iterdir())
+
+
+def test_calibrate_report_line_names_the_gyro_axes_with_the_velocity_ones():
+    """The calibrate report's line covers all six axes the blocks test: its label says velocity
+    and gyro, and a kept gyro axis is named with its long-run sigma."""
+    from vislam.eval.commands.calibrate import _motion_correlation_line
+    from vislam.graph.motion_correlation import AXES, MotionCorrelation
+
+    m = MotionCorrelation(np.array([1.0, 1.0, 4.0, 1.0, 1.0, 1.0]),
+                          long_run_sigma=np.array([0.01, 0.01, 0.04, 0.1, 0.1, 0.1]),
+                          ratio=np.array([1.0, 1.1, 9.0, 1.2, 1.0, 0.9]), threshold=2.16,
+                          n_blocks=23, block_frames=48, solves=3, converged=True, tested=True,
+                          kept=(AXES[2],)).to_dict()
+    line = _motion_correlation_line(m)
+    assert line.startswith("velocity and gyro errors in time: long-run / white variance over 23")
+    assert "gyro z: the estimators use the long-run interval sigma gyro z 0.04" in line
+    assert _motion_correlation_line({}).startswith("velocity and gyro errors in time: not measured")

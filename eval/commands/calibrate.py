@@ -156,15 +156,15 @@ def _verdict(fit) -> list[str]:
 def _motion_correlation_line(m: dict) -> str:
     """The velocity and gyro errors' long-run sigma (graph.motion_correlation), one line."""
     if not m:
-        return "velocity errors in time: not measured"
+        return "velocity and gyro errors in time: not measured"
     if not m.get("tested"):
-        return f"velocity errors in time: not tested ({m.get('why', '')})"
+        return f"velocity and gyro errors in time: not tested ({m.get('why', '')})"
     ratios = ", ".join(f"{a} {r:.3g}" for a, r in zip(m["axes"], m["variance_ratio"]))
     kept = (", ".join(m["kept"]) + ": the estimators use the long-run interval sigma "
             + ", ".join(f"{a} {s:.3g}" for a, s in zip(m["axes"], m["long_run_interval_sigma"])
                         if a in m["kept"])) if m["kept"] else "none kept (white)"
-    return (f"velocity errors in time: long-run / white variance over {m['n_blocks']} blocks of "
-            f"{m['block_frames']} frames {ratios} against {m['threshold']:.3g} "
+    return (f"velocity and gyro errors in time: long-run / white variance over {m['n_blocks']} "
+            f"blocks of {m['block_frames']} frames {ratios} against {m['threshold']:.3g} "
             f"({m['criterion']}): {kept}")
 
 
