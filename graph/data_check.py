@@ -286,7 +286,10 @@ def interval_residuals(solution, config: FilterConfig) -> tuple[np.ndarray, np.n
     R = np.zeros((n, 6, 6))
     if n == 0:
         return w, R, W
-    _, reduced = linearise(graph, values, T, "linearising for the interval residuals")
+    if solution.bias_model is None:  # the solution's own graph: its linearisation, computed once
+        _, reduced = solution.linearised()
+    else:
+        _, reduced = linearise(graph, values, T, "linearising for the interval residuals")
     pose_cov, pair_cov = pose_chain_covariances(reduced, T)
     w, cw, _ = motion_residuals(solution.poses, deltas, solution.twist, solution.tau,
                                 pose_cov, pair_cov)
