@@ -32,6 +32,7 @@ COMMANDS = {
     "calibrate": ("calibrate", "identify the noise model of a drive from the data (no ground truth)"),
     "score": ("score", "score a trajectory made elsewhere against ground truth and the smoother"),
     "compare": ("compare", "compare result folders (bench or nees) side by side"),
+    "config": ("config", "print a commented settings file with every default (for --config)"),
 }
 
 
