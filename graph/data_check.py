@@ -20,7 +20,7 @@ the same holds for the linear-velocity part (``w_k[3:]``, the 3x3 block of ``R_k
 angular part (``w_k[:3]``) with 3 each.
 
 Intervals and directions vision does not see. Where no track spans an interval
-(:func:`graph.factors.unconstrained_intervals`: the shared drives' repeat events) nothing but
+(:func:`graph.factors.unconstrained_intervals`: a tracker's repeat events) nothing but
 the velocity measures the motion: without the twist-smoothness prior the residual is forced to
 zero and ``R_k ~ 0``, and with it the residual measures the velocity against that prior (whose
 sigma comes from the drive itself), not against vision. Such intervals are left out whole.
@@ -53,10 +53,10 @@ share the posterior, a small effect). The linearisation is at the solution, with
 kernel's weights of the stereo factors; the residuals of a badly wrong model are not Gaussian
 and the chi-square is only a yardstick then. On simulated drives under their true model the
 ratio chi2/dof of a stretch averages 0.92-1.08 (linear part, by pairing; total within 5 %).
-What the test can see depends on the velocity noise: a lever arm wrong by metres (the shared
-data's "kitti" fault) adds ``|omega x dl|^2`` to the squared linear residuals, which a 10 s
-stretch shows clearly at 0.1-0.2 m/s of noise per sample but hardly at 0.5 m/s, where
-:mod:`graph.extrinsic` (``vislam calibrate``) is the test to use.
+What the test can see depends on the velocity noise: a lever arm wrong by metres (the
+simulator's ``--file-extrinsic-fault kitti``) adds ``|omega x dl|^2`` to the squared linear
+residuals, which a 10 s stretch shows clearly at 0.1-0.2 m/s of noise per sample but hardly at
+0.5 m/s, where :mod:`graph.extrinsic` (``vislam calibrate``) is the test to use.
 """
 
 from __future__ import annotations

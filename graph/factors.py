@@ -327,7 +327,7 @@ def fix_bias(problem: GraphProblem, values: gtsam.Values, deltas: np.ndarray, no
 # --- intervals without vision ---------------------------------------------------------------
 def unconstrained_intervals(rows: StereoRows, n_frames: int) -> np.ndarray:
     """Boolean (T-1,): no track is observed at both ends of the interval ``[k, k+1]``, so only
-    the velocity spans it (the shared drives' repeat events, after track cleaning)."""
+    the velocity spans it (a tracker's repeat events, after track cleaning)."""
     order = np.lexsort((rows.frame, rows.track))
     f, t = rows.frame[order], rows.track[order]
     linked = (t[1:] == t[:-1]) & (f[1:] == f[:-1] + 1)

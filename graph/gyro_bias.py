@@ -1,8 +1,8 @@
 """A constant gyro bias shared by every motion factor of the batch smoother.
 
-The shared drives' angular velocities carry constant offsets of 0.005-0.01 rad/s per axis
-(DESIGN.md). Where vision constrains consecutive poses that hardly matters, but at the drives'
-"repeat events" one interval has no visual constraint and only the velocity spans it; the
+A drive's angular velocities may carry constant offsets per axis (docs/findings.md names
+the ones measured). Where vision constrains consecutive poses that hardly matters, but at a
+tracker's "repeat events" one interval has no visual constraint and only the velocity spans it; the
 offsets then add up to a systematic heading drift. The smoother therefore estimates one bias
 ``b`` (rad/s, body frame) jointly with the poses.
 

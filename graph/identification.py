@@ -24,8 +24,7 @@ against none must exceed ``3 ln n`` (3 parameters, n intervals; a chi-square tes
 level, ``BIAS_TEST_LEVEL``, is reported beside it). BIC grows stricter with the drive's length:
 on a long drive with clean velocities, small misfits of the model (an extrinsic the drive
 barely determines, non-white velocity errors) pass a 99 % chi-square test as a "bias" of a
-fraction of a mrad/s that, subtracted, makes dead reckoning three times worse (the 2019
-edition of 0027: statistic 17.1, chi-square threshold 11.3, BIC threshold 21.0). The
+fraction of a mrad/s that, subtracted, makes dead reckoning worse (docs/findings.md). The
 velocity pairing is the one under which the samples need the least noise (``sum log sigma^2``
 over the six axes, per sample: the likelihood of white samples): a wrong pairing adds the
 twist's change over an interval to the noise. The pairing the settings give is kept unless
@@ -411,8 +410,8 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     if seq.n_frames < 3:
         raise EstimationError("calibrate: needs at least 3 frames")
     # Every round to the same tolerance: the bias and pairing decisions compare likelihoods
-    # of nearby solves, and a looser rejection round moved them (one stopped at 1e-3 took the
-    # 2019 edition's bias likelihood ratio from below BIC's 21.02 to 21.9).
+    # of nearby solves, and a looser rejection round moved them across the BIC threshold
+    # (docs/findings.md).
     em_tol = max(settings.relative_error_tol, EM_RELATIVE_ERROR_TOL)
     with_bias = settings.replace(gyro_bias="alternate", relative_error_tol=em_tol,
                                  rejection_relative_error_tol=em_tol)

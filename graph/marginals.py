@@ -1,9 +1,9 @@
 """Marginal covariances of a solved graph, in the :class:`ekf.estimate.Estimate` convention.
 
-``gtsam.Marginals`` answers one key at a time through the Bayes tree; on a drive-long pose
-chain that costs milliseconds per key (about 10 s for a 300-frame simulated drive, tens of
-seconds on the shared drives). :func:`schur_marginals` computes the same numbers from GTSAM's
-own linearisation at the solution (robust weights included):
+``gtsam.Marginals`` answers one key at a time through the Bayes tree; on a drive-long pose chain
+that costs milliseconds per key (about 10 s for a 300-frame simulated drive).
+:func:`schur_marginals` computes the same numbers from GTSAM's own linearisation at the solution
+(robust weights included):
 
 1. the whitened sparse Jacobian ``A`` of ``graph.linearize(values)``, information ``H = A^T A``;
 2. landmarks eliminated in closed form (their blocks are 3x3 and independent), leaving the

@@ -2,15 +2,11 @@
 drive.
 
 Every estimator treats the twist noise of one interval as independent of the next. A vehicle's
-velocity source does not make it so: on the 2019 edition of KITTI 0027 the body-frame velocity
-errors against ground truth correlate at 0.6-0.9 from one frame to the next and still at 0.3 five
-seconds apart (lateral), so over five seconds they add up to 8-24 times the variance that
-independent errors of the same spread would (``benchmarks/lever_arm_truth.py`` names the
-drive's other velocity finding). A drive's drift is built from that slow part. EM fits the
+velocity source does not make it so: its errors may correlate for seconds (docs/findings.md:
+"Velocity errors are slow"), and a drive's drift is built from that slow part. EM fits the
 white model to the interval residuals (:mod:`graph.identification`); where the motion is
-smooth and vision weak it then finds the high-frequency spread (forward velocity 0.0057 m/s on
-that drive), and every estimator is overconfident about what the velocities integrate to (pose
-NEES 16-23 against ground truth).
+smooth and vision weak it then finds the high-frequency spread, and every estimator is
+overconfident about what the velocities integrate to.
 
 What the estimators need is the twist noise's long-run variance, the white-equivalent that
 gives the right variance of a sum over many intervals (the Newey-West correction the pixels'
@@ -43,10 +39,7 @@ integrated correlation time of the interval noise) and the estimators use ``sigm
 (:func:`ekf.model.model_config`). With the "mean" pairing two intervals share a sample, so
 white samples give ``tau = 2``; the test's null is the samples', so that alone is not
 evidence. Drives shorter than ``MIN_BLOCKS`` blocks are not tested (too few sums to tell).
-
-Measured (``vislam calibrate``): the 2019 edition of 0027 keeps the long-run sigma of all three
-velocity axes (variance ratios 7.1, 11.5, 11.6 against 2.16 over 23 blocks); shared 0027, whose
-added noise is white, none (at most 1.45); the simulator's white noise, none.
+The simulator's white noise keeps none; what real drives keep is in docs/findings.md.
 """
 
 from __future__ import annotations
@@ -63,8 +56,8 @@ from vislam.graph.pose_conversions import interval_jacobians, to_pose3
 
 log = logging.getLogger(__name__)
 
-#: Block length in seconds: longer than the velocity errors' correlation (about 5 s laterally
-#: on KITTI 0027), short enough for MIN_BLOCKS blocks on a two-minute drive.
+#: Block length in seconds: longer than the velocity errors' correlation (a few seconds on the
+#: drives measured, docs/findings.md), short enough for MIN_BLOCKS blocks on a two-minute drive.
 BLOCK_SECONDS = 5.0
 #: Fewer blocks than this: no test (the long-run variance of fewer sums is too uncertain).
 MIN_BLOCKS = 8
@@ -197,8 +190,8 @@ def fixed_point(step, theta: np.ndarray, floor: np.ndarray, rtol: float = RTOL,
     """The log sigmas where ``step`` (the blocks' log sigmas under the model ``theta``) gives
     back ``theta``, at least ``floor``: a secant search on ``h(theta) = step(theta) - theta``
     per axis (the axes barely interact), from one plain step. Plain iteration (EM) creeps
-    where vision leaves much of the motion to the posterior (the forward velocity of the 2019
-    edition of 0027: a few % per solve); the secant takes the slope of ``h`` into account.
+    where vision leaves much of the motion to the posterior (a few % per solve); the secant
+    takes the slope of ``h`` into account.
     Steps are at most ``MAX_LOG_STEP``. Returns the last theta and whether it settled."""
     floor = np.asarray(floor, dtype=float)
     prev_theta, prev_h = None, None

@@ -2,10 +2,9 @@
 
 A file's pixels may carry a lens distortion that its pinhole ``K`` does not describe; with one
 radial coefficient ``k1`` (:mod:`ekf.camera`: ``x_d = x (1 + k1 r^2)``) it scales the bearings
-towards the edge of the image, so vision's turns come out too large or too small (the shared
-0027: +0.7 % against ground truth, the whole of its coherent heading bias). Under a model with
-the term, the pixels lose it once (:func:`ekf.model.without_radial`) and every estimator keeps
-the pinhole model. To identify it:
+towards the edge of the image, so vision's turns come out too large or too small
+(docs/findings.md: "A radial lens term"). Under a model with the term, the pixels lose it once
+(:func:`ekf.model.without_radial`) and every estimator keeps the pinhole model. To identify it:
 
 1. *Profile likelihood.* For a trial ``k1`` the smoother solves the drive with the term removed
    (noise levels, extrinsic and stereo rows held at the identified model's); ``-log L(k1)`` is
@@ -41,7 +40,7 @@ from vislam.graph.settings import SmootherSettings
 log = logging.getLogger(__name__)
 
 #: Spacing of the profile's three points (normalised coordinates): a 1 % bearing change at
-#: the image corner (r about 0.9), a few sigmas of the shared drives' estimate.
+#: the image corner (r about 0.9), a few sigmas of a typical drive's estimate.
 RADIAL_STEP = 0.01
 #: Re-centrings of the parabola, at most.
 RADIAL_ROUNDS = 4

@@ -57,26 +57,21 @@ class SmootherSettings:
     #: LM's relative error tolerance in the rounds before the last (at least
     #: ``relative_error_tol``): they only decide which observations are outliers, and their
     #: solution is where the last round starts, which converges as before, to
-    #: ``relative_error_tol``. At 1e-2 the first round on 0034 stops after 5 iterations instead
-    #: of 14 (the batch smoother 6.8 s instead of 12.2 s with its EKF initialisation) and 34 of
-    #: 4803 rejections change (residuals within a hair of the threshold); aligned ATE / t_rel
-    #: 2.62 m / 1.450 % against 2.64 / 1.453 on shared 0027, 0.915 m / 0.900 % against 0.927 /
-    #: 0.903 on 2019/0027 (identified models). Identification solves every round to its own
-    #: tolerance.
+    #: ``relative_error_tol``. A looser tolerance here saves iterations and changes only the
+    #: rejections of residuals within a hair of the threshold. Identification solves every
+    #: round to its own tolerance.
     rejection_relative_error_tol: float = 1e-2
     #: How LM changes its damping after a step: "nielsen" (GTSAM's ``useFixedLambdaFactor``
     #: off: the damping follows the gain ratio, Nielsen's rule) or "fixed" (divided or
     #: multiplied by 10). Nielsen's rule spares the repeated solves of a step that fails
-    #: several times over (the first round on 0034 raised the damping from 1e-7 to 1e-2 in
-    #: one iteration: 6 solves, 1.1 s of 4.2).
+    #: several times over.
     lm_damping: str = "nielsen"
     #: The linear solver of each LM step (LINEAR_SOLVERS: GTSAM's SEQUENTIAL_CHOLESKY,
-    #: MULTIFRONTAL_CHOLESKY, MULTIFRONTAL_QR). Sequential Cholesky, the same arithmetic as
-    #: the multifrontal one in another grouping, is about 5 % faster per iteration on the
-    #: drives and the simulation (0034: 0.177 s against 0.185 s), with the same solution.
+    #: MULTIFRONTAL_CHOLESKY, MULTIFRONTAL_QR). Sequential Cholesky is the same arithmetic
+    #: as the multifrontal one in another grouping, with the same solution.
     linear_solver: str = "sequential-cholesky"
     #: Weak prior (m) on every landmark, centred on its initial triangulation: it keeps the
-    #: system determinate for marginals (a prototype's Marginals threw on 0034 without it).
+    #: system determinate for marginals (without it a long drive's Marginals can throw).
     landmark_prior_sigma: float = 100.0
     #: Cheirality margin: a landmark closer than this (m) to, or behind, any of its cameras is
     #: dropped (GTSAM's stereo factor returns a constant residual with a zero Jacobian there).
@@ -97,19 +92,15 @@ class SmootherSettings:
     #: iSAM2 relinearisation threshold and skip; skip 0: never relinearise during the run
     #: (each variable stays linearised where it entered, at the prediction from the latest
     #: estimate, which is good to first order), then ``isam2_final_relinearizations`` rounds.
-    #: Fluid relinearisation (GTSAM's skip 10) spent 80 % of the time on 0034 (42 s against
-    #: 7 s) for a less accurate estimate (shared 0027 aligned ATE 2.69 m against 2.40 m; the
-    #: default simulation 0.14 m against 0.13 m).
+    #: Fluid relinearisation (GTSAM's skip 10) is slower and was less accurate.
     isam2_relinearize_threshold: float = 0.1
     isam2_relinearize_skip: int = 0
     #: Updates with no new factors after the last frame, each relinearising every variable whose
     #: change exceeds the threshold (GTSAM's ``force_relinearize``, regardless of the skip).
-    #: Without them the default simulation's aligned ATE is 0.62 m instead of 0.13 m.
     isam2_final_relinearizations: int = 3
-    #: iSAM2's factorisation, "cholesky" (GTSAM's default) or "qr" (2-3 times slower). A run
-    #: whose Cholesky factorisation fails ("indeterminate system", ill-conditioned: 2019/0027 with
-    #: the file's model, 1e12 at frame 795) is repeated with QR, which does not square the
-    #: condition number.
+    #: iSAM2's factorisation, "cholesky" (GTSAM's default) or "qr" (slower). A run whose
+    #: Cholesky factorisation fails ("indeterminate system": an ill-conditioned system) is
+    #: repeated with QR, which does not square the condition number.
     isam2_factorization: str = "cholesky"
     #: The fixed-lag smoother's window (``smoother-fixed-lag``), seconds: a pose leaves it this
     #: long after its frame, a landmark this long after its last observation.

@@ -3,11 +3,11 @@
 Steps, each timed (``est.info["timing"]``):
 
 1. *initialise*: a trajectory (the EKF's estimate by default, dead reckoning or iSAM2 on
-   request; LM from dead reckoning converges badly on the shared drives), landmarks triangulated
+   request; LM from dead reckoning converges badly on long real drives), landmarks triangulated
    from each track's largest-disparity observation, and tracks behind any of their cameras
    dropped (GTSAM's stereo factor fails silently there: constant residual, zero Jacobian).
-2. *build* the graph (:mod:`graph.factors`). On intervals no track spans (the repeat events
-   of the shared drives) a twist-smoothness prior (:mod:`graph.twist_smoothness`) predicts the
+2. *build* the graph (:mod:`graph.factors`). On intervals no track spans (a tracker's
+   repeat events) a twist-smoothness prior (:mod:`graph.twist_smoothness`) predicts the
    motion from the two neighbouring intervals, with a sigma measured on the drive itself. A
    constant gyro bias (:mod:`graph.gyro_bias`) is estimated from the initial trajectory and
    removed from every motion factor (``settings.gyro_bias="alternate"``; not when
@@ -19,10 +19,7 @@ Steps, each timed (``est.info["timing"]``):
 4. *marginals*: pose and landmark covariances (conditional on the estimated bias), converted
    to the Estimate convention.
 
-On 0027 (ground truth, 2-core machine, the file's model): aligned ATE 2.82 m, KITTI t_rel
-1.53 % (5.06 m, 2.30 % with a 6-sample gyro mean at the gaps instead of the smoothness prior;
-6.65 m, 3.00 % with neither the bias nor any gap treatment); 0034 in about 5.7 s with marginals
-given the EKF's estimate, as bench gives it (the EKF itself 1.7 s; benchmarks/smoother_timing.py).
+Accuracy and timing on real drives: docs/findings.md and benchmarks/smoother_timing.py.
 """
 
 from __future__ import annotations

@@ -3,11 +3,10 @@ residuals.
 
 Every estimator treats the stereo observations of a track as independent draws of the pixel
 noise. A feature tracker does not make them so: where it places a feature drifts slowly along
-the track, so the error of one frame is nearly that of the next. On both editions of KITTI 0027
-the residuals of neighbouring observations of a track correlate at about 0.7 (the simulator's
-white noise: -0.09, the landmark fit's own small negative correlation;
-``benchmarks/track_residuals.py``). Counted as independent, a track of n such observations
-carries the information of n / tau of them, where
+the track, so the error of one frame is nearly that of the next (docs/findings.md: "Pixel errors
+drift along a track"; the simulator's white noise shows only the landmark fit's own small
+negative correlation, ``benchmarks/track_residuals.py``). Counted as independent, a track
+of n such observations carries the information of n / tau of them, where
 
     tau = 1 + 2 sum_{m >= 1} rho(m)                                    (integrated correlation time)
 
@@ -38,11 +37,9 @@ tau; the trial whose residuals show the data's (log-log interpolation) is the er
 and the residuals' variance per degree of freedom there (``variance_ratio``) rescales EM's
 sigma (``sigma_factor``). The poses' share of the fit is left out (each pose is shared by many
 tracks). Simulator: 11.6-11.7 for 12.3, 5.4-5.5 for 5.7, 2.9-3.0 for 3.0; sigma within 2 %.
-Known limit: with few tracks a frame the premise fails. The 2019 edition of KITTI 0027 (3 a
-frame) gives 21.6 on EM's solution but 13.4 under the final model's weights; the whole graph's
-linearised fit, poses included, does not reconcile them either (28.9 and 15.3). Its errors are
-partly common to the tracks of a frame, which this AR(1) model of independent tracks lacks.
-Shared 0027 gives 14.9 both ways.
+Known limit: with few tracks a frame the premise fails: the poses' share of the fit is no
+longer small, the figure then depends on the solution it is measured on, and errors common to
+the tracks of a frame are outside this AR(1) model of independent tracks (docs/findings.md).
 
 Decision: the correlation is kept when lag 1's is positive and its statistic ``N rho(1)^2``
 (chi-square with 1 degree of freedom for white noise, N the lag-1 pairs) passes BIC (ln N), as

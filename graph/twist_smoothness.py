@@ -1,11 +1,10 @@
 """A smoothness prior on the body twist across intervals that vision does not span.
 
-At the shared drives' repeat events (after track cleaning) no track is observed at both ends
-of one interval ``[k, k+1]``; only the velocity measurement spans it, with a gyro error of
-about 0.04 rad/s (4 mrad of heading per interval, mean pairing) that nothing else corrects.
-A car's motion is smooth at 10 Hz, though: against the ground truth of 0027 the twist of an
-interval differs from the mean of its two neighbours by about 0.004 rad/s in yaw and
-0.03-0.05 m/s in velocity, ten times less than the velocity measurement's noise. The
+At a tracker's repeat events (after track cleaning) no track is observed at both ends of one
+interval ``[k, k+1]``; only the velocity measurement spans it, with its gyro error, which
+nothing else corrects. A car's motion is smooth at 10 Hz, though: the twist of an interval
+differs from the mean of its two neighbours by much less than the velocity measurement's
+noise (docs/findings.md: "Twist smoothness at the gaps"). The
 neighbouring intervals are fixed well by vision, so the twist of the gap is predicted from
 them. This module adds that prediction as a factor (a white-noise prior on the second
 difference of the twist, i.e. on the angular and linear "jerk" over the gap):
@@ -138,7 +137,7 @@ def gap_prior(k: int, tau: np.ndarray, sigma: np.ndarray,
 
     With ``values`` it is linearised there and returned as a ``LinearContainerFactor``
     instead of the Python ``CustomFactor``: any Python factor in the graph halves the speed of
-    GTSAM's Levenberg-Marquardt on the 2-core machine (0027: 12 -> 25 s), the C++ container
+    GTSAM's Levenberg-Marquardt (docs/findings.md), the C++ container
     costs nothing. The linearisation is exact for a change of the global frame (the
     error depends on relative poses only, and a left change ``G x_i`` is the right perturbation
     ``Ad(x_i^-1) log G`` of every pose); the smoothers relinearise it each solve round (batch)
