@@ -40,8 +40,9 @@ def main(argv: list[str] | None = None) -> int:
     initial = gtsam.Values()
 
     # A prior on the first pose: the world is the IMU frame at frame 0 (GTSAM: rotation first).
-    prior_sigmas = np.r_[np.full(3, config.initial_rotation_sigma), np.full(3, config.initial_position_sigma)]
-    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Diagonal.Sigmas(prior_sigmas)))
+    prior = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, config.initial_rotation_sigma),
+                                                   np.full(3, config.initial_position_sigma)])
+    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), prior))
     initial.insert(X(0), gtsam.Pose3())
 
     # Motion: X(k+1) = X(k) exp(tau u) with u the body twist of the interval. A twist error w of
@@ -50,10 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     twists, taus = interval_twists(seq, config.velocity_pairing)  # (T-1, 6) [v; w], (T-1,)
     for k, (u, tau) in enumerate(zip(twists, taus)):
         xi = tau * np.r_[u[3:], u[:3]]  # GTSAM's twist order: rotation first
-        J = gtsam.Pose3.ExpmapDerivative(xi)
+        J, delta = gtsam.Pose3.ExpmapDerivative(xi), gtsam.Pose3.Expmap(xi)
         noise = gtsam.noiseModel.Gaussian.Covariance(tau**2 * J @ W @ J.T)
-        graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), gtsam.Pose3.Expmap(xi), noise))
-        initial.insert(X(k + 1), initial.atPose3(X(k)).compose(gtsam.Pose3.Expmap(xi)))  # dead reckoning
+        graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), delta, noise))
+        initial.insert(X(k + 1), initial.atPose3(X(k)).compose(delta))  # dead reckoning
 
     # Vision: stereo pixels [uL, uR, v] (v the mean of vL and vR, hence sigma / sqrt(2)) of a
     # landmark seen by the left camera at X(k) imu_T_cam; tracks seen at least twice.
@@ -63,16 +64,17 @@ def main(argv: list[str] | None = None) -> int:
     stereo_noise = gtsam.noiseModel.Robust.Create(
         gtsam.noiseModel.mEstimator.Huber.Create(1.345),
         gtsam.noiseModel.Diagonal.Sigmas(np.array([s, s, s / np.sqrt(2.0)])))
-    landmark_prior = gtsam.noiseModel.Isotropic.Sigma(3, 100.0)  # weak: keeps far points determinate
-    disparity = seq.obs.z[:, 0] - seq.obs.z[:, 2]
+    landmark_prior = gtsam.noiseModel.Isotropic.Sigma(3, 100.0)  # weak: far points stay determinate
+    obs = seq.obs
+    disparity = obs.z[:, 0] - obs.z[:, 2]
     use = disparity > config.min_disparity
-    use &= np.bincount(seq.obs.track[use], minlength=seq.n_tracks)[seq.obs.track] >= 2
+    use &= np.bincount(obs.track[use], minlength=seq.n_tracks)[obs.track] >= 2
     rows = np.flatnonzero(use)[np.argsort(-disparity[use], kind="stable")]  # largest disparity first
-    for k, j, (uL, vL, uR, vR) in zip(seq.obs.frame_index[rows].tolist(), seq.obs.track[rows].tolist(),
-                                      seq.obs.z[rows].tolist()):
+    for k, j, (uL, vL, uR, vR) in zip(obs.frame_index[rows].tolist(), obs.track[rows].tolist(),
+                                      obs.z[rows].tolist()):
         pixels = gtsam.StereoPoint2(uL, uR, 0.5 * (vL + vR))
         graph.add(gtsam.GenericStereoFactor3D(pixels, stereo_noise, X(k), L(j), K, imu_T_cam))
-        if not initial.exists(L(j)):  # triangulated where its depth is best known, from dead reckoning
+        if not initial.exists(L(j)):  # triangulated where its depth is best known (dead reckoning)
             camera = gtsam.StereoCamera(initial.atPose3(X(k)).compose(imu_T_cam), K)
             initial.insert(L(j), camera.backproject(pixels))
             graph.add(gtsam.PriorFactorPoint3(L(j), initial.atPoint3(L(j)), landmark_prior))
