@@ -3,8 +3,8 @@
 In the style of GTSAM's Python examples: a short simulated drive, a Pose3 ``X(k)`` per frame
 (``world_T_imu``, the world being the IMU frame at frame 0) and a Point3 ``L(j)`` per track,
 motion factors from the integrated body twist of each interval, stereo factors seen through the
-camera-IMU extrinsic under a Huber kernel, a prior on the first pose, Levenberg-Marquardt and the
-marginal covariance of the last pose. Then vislam's own smoother runs on the same drive, and both
+camera-IMU extrinsic under a Huber kernel, a prior on the first pose (and a weak one on each
+landmark), Levenberg-Marquardt and the marginal covariance of the last pose. Then vislam's own smoother runs on the same drive, and both
 trajectories' ATE against the truth is printed with how far apart they are.
 
     python examples/smoother_graph.py [--frames 100] [--seed 0] [--out DIR]
@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     imu_T_cam = to_pose3(np.linalg.inv(c.cam_T_imu))
     s = config.pixel_sigma
     stereo_noise = gtsam.noiseModel.Robust.Create(
-        gtsam.noiseModel.mEstimator.Huber.Create(1.345),
+        gtsam.noiseModel.mEstimator.Huber.Create(1.345),  # vislam's huber_k, in sigmas
         gtsam.noiseModel.Diagonal.Sigmas(np.array([s, s, s / np.sqrt(2.0)])))
     landmark_prior = gtsam.noiseModel.Isotropic.Sigma(3, 100.0)  # weak: far points stay determinate
     obs = seq.obs
