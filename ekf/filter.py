@@ -148,3 +148,13 @@ class Filter(Protocol):
 
     def info(self) -> dict:
         """Entries for ``Estimate.info`` (JSON-able), read once after the last frame."""
+
+
+#: The methods a :class:`Filter` has (besides its ``name``).
+FILTER_METHODS = ("initialise", "predict", "update", "marginalise", "pose", "pose_cov",
+                  "active_landmarks", "landmark_map", "info")
+
+
+def is_filter_class(obj) -> bool:
+    """Whether ``obj`` is a class with every method of the :class:`Filter` protocol."""
+    return isinstance(obj, type) and all(callable(getattr(obj, m, None)) for m in FILTER_METHODS)
