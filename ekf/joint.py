@@ -351,7 +351,8 @@ class JointState:
 
         ``J`` is taken at the linearisation point of the landmark's Jacobians: the current
         estimate, or with "fej" the first one (so that ``J N(x_first) = [I, -m_first^]``, the
-        Euclidean first-estimate nullspace; at the current estimate FEJ's ANEES went 5 -> 61)."""
+        Euclidean first-estimate nullspace; taken at the current estimate, FEJ's nullspace would
+        be lost)."""
         x, R_a, p_a = self.lm_mean[ids], self.anchor_R[ids], self.anchor_p[ids]
         J = idp.world_jacobian(self.lm_first[ids] if self.linearisation == "fej" else x, R_a)
         rows = self.landmark_rows(ids)  # (k, 3)
@@ -430,8 +431,8 @@ class JointState:
 def symmetric_downdate(P: np.ndarray, Y: np.ndarray, work: np.ndarray) -> None:
     """``P <- P - Y^T Y`` in place, ``work`` (N, N) memory for ``Y^T Y``. NumPy computes
     ``Y^T Y`` with BLAS ``syrk`` and mirrors it, so the product is exactly symmetric and ``P``
-    stays as symmetric as it was (15 % faster than ``syrk`` into ``P`` followed by a masked
-    mirror copy, on 0034's 375-row states)."""
+    stays as symmetric as it was (and it is faster than ``syrk`` into ``P`` followed by a
+    masked mirror copy)."""
     P -= np.matmul(Y.T, Y, out=work)
 
 

@@ -4,8 +4,7 @@ exactly and without the dense update. (A landmark *retires* when its track ends.
 With ``config.keep_landmarks`` the joint EKF keeps every landmark in its state (textbook EKF
 SLAM), so that each later update still refines the landmarks of ended tracks through their
 cross-covariance with the pose. Written as one dense covariance that costs ``O(N^2)`` per update
-for ``N`` = 3 x every landmark ever seen: on a 1224-frame KITTI drive ``N`` is 27 000 and the
-run does not finish. The same numbers are cheap (in the spirit of Guivant and Nebot's compressed
+for ``N`` = 3 x every landmark ever seen, which grows with the drive without bound. The same numbers are cheap (in the spirit of Guivant and Nebot's compressed
 EKF, 2001: a landmark that is not observed needs no per-update work of its own):
 
 A retired landmark ``x_j`` (its track has ended) is never observed again. Write it as its
