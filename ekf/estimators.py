@@ -86,10 +86,16 @@ def whole_drive(cls: type, name: str) -> Callable[..., Estimate]:
     return run
 
 
-#: The per-frame filters by name, each as a whole-drive ``run(seq, config, progress)``.
-ESTIMATORS: dict[str, Callable[..., Estimate]] = {
-    name: whole_drive(load_target(builtin_entry_points()[name]), name) for name in filter_names()
-}
+def __getattr__(name: str):
+    """``ESTIMATORS``: the per-frame filters by name, each as a whole-drive
+    ``run(seq, config, progress)`` (:func:`whole_drive`); built on first use, so that reading the
+    names imports no filter."""
+    if name == "ESTIMATORS":
+        table = {n: whole_drive(load_target(builtin_entry_points()[n]), n) for n in filter_names()}
+        globals()["ESTIMATORS"] = table
+        return table
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["ENTRY_POINT_GROUP", "ESTIMATORS", "SMOOTHER_INITIALISERS", "builtin_entry_points",
            "filter_names", "load_target", "whole_drive"]
