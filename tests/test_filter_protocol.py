@@ -114,3 +114,19 @@ def test_a_builtin_through_the_registry_is_its_run_function(drive):
     ref = run_joint(drive, FilterConfig())
     np.testing.assert_array_equal(est.poses, ref.poses)
     np.testing.assert_array_equal(est.landmark_cov, ref.landmark_cov)
+
+
+def test_bench_and_nees_run_a_users_filter_class(tmp_path):
+    import json
+
+    from vislam.eval.cli import main
+
+    spec = f"{__file__}:PoseAndFirstSight"
+    assert main(["bench", "--frames", "40", "--model", "as-given", "-e", spec, "-j", "1",
+                 "--out", str(tmp_path / "bench"), "-q"]) == 0
+    (seq,) = json.loads((tmp_path / "bench" / "results.json").read_text())["sequences"]
+    assert [r["name"] for r in seq["estimators"]] == [spec] and seq["estimators"][0]["error"] is None
+    assert main(["nees", "--runs", "2", "--frames", "30", "-e", spec, "-j", "1",
+                 "--out", str(tmp_path / "nees"), "-q"]) == 0
+    row = json.loads((tmp_path / "nees" / "nees.json").read_text())["estimators"][spec]
+    assert row["runs_failed"] == 0 and row["anees_pose"] is not None
