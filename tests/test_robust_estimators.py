@@ -26,11 +26,11 @@ from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.sequence import Observations, Sequence
-from vislam.eval.registry import ESTIMATOR_NAMES, get_estimator
+from vislam.ekf.estimators import filter_names
+from vislam.eval.registry import ESTIMATOR_NAMES, SMOOTHERS, get_estimator
 from vislam.eval.simulate import SimConfig, simulate
 
-EKFS = ("dead-reckoning", "mapping", "ekf-decoupled", "ekf-joint", "ekf-invariant")
-SMOOTHERS = ("smoother", "smoother-isam2", "smoother-fixed-lag")
+EKFS = filter_names()  # the per-frame filters: the EKFs, dead reckoning and mapping
 assert set(EKFS + SMOOTHERS) == set(ESTIMATOR_NAMES)
 
 #: Examples per property test; the environment variable scales them for a long local sweep.
