@@ -3,9 +3,8 @@
 The quirk (foundation issue, DESIGN.md): at each frame where many new tracks start, every
 continuing track repeats its previous observation exactly, and its later observations no longer
 fit its earlier ones (they lag). The repair drops the repeated observation and continues the
-rest of the track as a **new** track index, so that no landmark is fitted to both parts.
-With the ground-truth poses of 0027 this cuts the reprojection residuals about threefold
-(see :mod:`ekf.reprojection` and ``tests/test_cleaning.py``).
+rest of the track as a **new** track index, so that no landmark is fitted to both parts (with
+known poses, the split tracks' reprojection residuals fall: ``tests/test_cleaning.py``).
 
 Stereo observations with non-positive or tiny disparity ``uL - uR`` (down to about -190 px in
 the shared data) cannot be triangulated and are rejected here too, as are points beyond

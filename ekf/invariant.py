@@ -55,7 +55,6 @@ Output. ``Estimate.pose_cov`` converts the pose block with
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -89,8 +88,9 @@ from vislam.ekf.geometry import (
     so3_log,
 )
 from vislam.ekf.prediction import se3_exp_single, se3_left_jacobian, so3_exp_and_left_jacobian
-from vislam.ekf.retired_invariant import InvariantRetired
-from vislam.ekf.runner import blas_limits, finish_estimate, interval_twists, prepare_sequence
+from vislam.ekf.kept_landmarks_invariant import InvariantKeptLandmarks
+from vislam.ekf.driver import run_filter
+from vislam.ekf.filter import FrameObservations, Landmarks, MotionInput, UpdateCounts
 from vislam.ekf.sequence import Sequence
 
 
@@ -227,7 +227,9 @@ def landmark_world_cov(P: np.ndarray, landmarks: np.ndarray, slots: np.ndarray, 
 # The filter
 # --------------------------------------------------------------------------------------
 @dataclass
-class _State:
+class InvariantState:
+    """Mean of the group element, bias and inverse-depth slots, and the covariance ``P``."""
+
     T: np.ndarray
     landmarks: np.ndarray  # (K, 3), slot order: world l, or x = [alpha, beta, rho]
     tracks: np.ndarray  # (K,) track id of each slot
@@ -237,8 +239,8 @@ class _State:
     lm_id: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     anchor_R: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
     anchor_p: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    # keep_landmarks: ended tracks' landmarks, as regressions on this state (ekf.retired)
-    retired: InvariantRetired | None = None
+    # keep_landmarks: ended tracks' landmarks, as regressions on this state (ekf.kept_landmarks)
+    retired: InvariantKeptLandmarks | None = None
     scratch: Scratch = field(default_factory=Scratch)
 
     def world_landmarks(self, slots: np.ndarray, off: int) -> tuple[np.ndarray, np.ndarray]:
@@ -256,123 +258,129 @@ class _State:
         return mean, cov
 
 
+class InvariantEKF:
+    """The right-invariant EKF (see the module docstring for the model): the per-frame protocol
+    (:mod:`ekf.filter`) around an :class:`InvariantState` and this module's steps.
+
+    With ``config.keep_landmarks`` the landmarks of ended tracks stay refined through
+    :class:`ekf.kept_landmarks_invariant.InvariantKeptLandmarks`, or in one dense covariance with
+    ``textbook`` (the same numbers at ``O(n^2)`` per frame: the reference of its test)."""
+
+    name = ESTIMATOR_NAME
+
+    def __init__(self, textbook: bool = False):
+        self.textbook = bool(textbook)
+
+    def initialise(self, seq: Sequence, config: FilterConfig, guard: NumericalGuard) -> None:
+        self.config = config
+        self.guard = guard
+        self.cal = cal = seq.calibration
+        self.M = cal.M
+        self.cam_T_imu = np.asarray(cal.cam_T_imu, dtype=float)
+        self.imu_T_cam = cal.imu_T_cam
+        self.V = config.pixel_cov
+        self.Vinv = np.linalg.inv(self.V)
+        self.W_chol = np.linalg.cholesky(config.velocity_cov)
+        use_bias = bool(config.gyro_bias)
+        self.off = off = landmark_offset(use_bias)
+        self.gate = None if config.gate_probability is None else chi2.ppf(config.gate_probability, 4)
+        P0 = np.zeros((off, off))
+        P0[:6, :6] = config.initial_pose_cov
+        if use_bias:
+            P0[B_IDX, B_IDX] = config.gyro_bias_sigma**2 * np.eye(3)
+        self.state = InvariantState(
+            T=np.eye(4),
+            landmarks=np.zeros((0, 3)),
+            tracks=np.zeros(0, dtype=np.int64),
+            P=P0,
+            bias=np.zeros(3) if use_bias else None,
+            retired=InvariantKeptLandmarks(off) if config.keep_landmarks and not self.textbook else None,
+        )
+        self.slot_of = -np.ones(seq.n_tracks, dtype=np.int64)
+        self.done = np.zeros(seq.n_tracks, dtype=bool)
+        self.ended = np.zeros(seq.n_tracks, dtype=bool)  # scratch mask for marginalise
+        self.map_mean = np.full((seq.n_tracks, 3), np.nan)
+        self.map_cov = np.full((seq.n_tracks, 3, 3), np.nan)
+        self.n_converted = 0
+
+    def predict(self, motion: MotionInput) -> None:
+        st, t = self.state, motion.frame
+        if not _propagate(st, motion.twist, motion.dt, self.W_chol, self.config, self.off):
+            raise self.guard.error(t, "state covariance not finite after prediction")
+        self.guard.check_state(t, st.T, st.P[:self.off, :self.off])
+
+    def update(self, frame: FrameObservations) -> UpdateCounts:
+        st, guard, config, off = self.state, self.guard, self.config, self.off
+        t, tracks, z = frame.frame, frame.tracks, frame.z
+        slots = self.slot_of[tracks]
+        old = slots >= 0
+        try:
+            n_used, n_rej, n_num = _update(
+                st, slots[old], z[old], self.M, self.cam_T_imu, self.V, self.Vinv, self.gate,
+                config, off
+            )
+        except UpdateRejected as exc:
+            guard.reject(t, str(exc), int(old.sum()))
+            n_used, n_rej, n_num = 0, int(old.sum()), 0
+        fresh = (~old) & (~self.done[tracks])
+        n_init, n_rej_new, n_num_new = _augment(
+            st, tracks[fresh], z[fresh], self.cal, self.imu_T_cam, self.V, config, off, self.slot_of
+        )
+        self.n_converted += _convert_linear(st, config, self.imu_T_cam, off)
+        if n_num + n_num_new:
+            guard.reject(t, "innovation covariance or triangulation not finite", n_num + n_num_new)
+        return UpdateCounts(n_used, n_rej + n_rej_new, n_init)
+
+    def marginalise(self, tracks: np.ndarray) -> None:
+        if not self.config.keep_landmarks or self.state.retired is not None:
+            self.ended[tracks] = True
+            _marginalise(self.state, self.ended, self.off, self.slot_of, self.done,
+                         self.map_mean, self.map_cov)
+            self.ended[tracks] = False
+
+    def pose(self) -> np.ndarray:
+        return self.state.T
+
+    def pose_cov(self) -> np.ndarray:
+        cov = left_cov_to_estimate(self.state.T, self.state.P[:6, :6].copy())
+        return 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+    def active_landmarks(self) -> Landmarks:
+        st = self.state
+        if not st.tracks.size:
+            return Landmarks.none()
+        return Landmarks(st.tracks.copy(), *st.world_landmarks(np.arange(st.tracks.size), self.off))
+
+    def landmark_map(self) -> tuple[np.ndarray, np.ndarray]:
+        st = self.state
+        mean, cov = self.map_mean.copy(), self.map_cov.copy()
+        if st.retired is not None and st.retired.n:
+            mean[st.retired.track], cov[st.retired.track] = st.retired.world(st.P)
+        return mean, cov
+
+    def info(self) -> dict:
+        info = {}
+        if self.config.landmark_parameterisation == "inverse-depth":
+            info["inverse_depth_converted"] = self.n_converted
+        if self.state.bias is not None:
+            info["gyro_bias"] = self.state.bias.tolist()
+            info["gyro_bias_sigma_final"] = np.sqrt(np.diag(self.state.P[B_IDX, B_IDX])).tolist()
+        info["estimator"] = ESTIMATOR_NAME
+        info["error_state"] = "right-invariant SE_{1+K}(3): [xi_p, xi_R, (xi_b), xi_l...]"
+        return info
+
+
 def run_invariant(
     seq: Sequence,
     config: FilterConfig = FilterConfig(),
     progress: Callable[[int], None] | None = None,
     textbook: bool = False,
 ) -> Estimate:
-    """Run the right-invariant EKF over ``seq``; see the module docstring for the model.
-
-    ``progress`` is called after each frame with the number of frames finished. With
-    ``config.keep_landmarks`` the landmarks of ended tracks stay refined through
-    :class:`ekf.retired_invariant.InvariantRetired`, or in one dense covariance with ``textbook``
-    (the same numbers at ``O(n^2)`` per frame: the reference of its test).
-    """
-    seq, info = prepare_sequence(seq, config)
-    guard = NumericalGuard(ESTIMATOR_NAME, seq.timestamps)
-    with blas_limits(config):
-        est = _run(seq, config, progress, guard, textbook)
-    est.info.update(info)
-    est.info.update(
-        {
-            "estimator": ESTIMATOR_NAME,
-            "config": config.to_dict(),
-            "error_state": "right-invariant SE_{1+K}(3): [xi_p, xi_R, (xi_b), xi_l...]",
-        }
-    )
-    return finish_estimate(est, guard)
+    """:class:`InvariantEKF` over ``seq`` (:func:`ekf.driver.run_filter`)."""
+    return run_filter(InvariantEKF(textbook), seq, config, progress)
 
 
-def _run(seq: Sequence, config: FilterConfig, progress, guard: NumericalGuard,
-         textbook: bool = False) -> Estimate:
-    cal = seq.calibration
-    M = cal.M
-    cam_T_imu = np.asarray(cal.cam_T_imu, dtype=float)
-    imu_T_cam = cal.imu_T_cam
-    V = config.pixel_cov
-    Vinv = np.linalg.inv(V)
-    W_chol = np.linalg.cholesky(config.velocity_cov)
-    use_bias = bool(config.gyro_bias)
-    off = landmark_offset(use_bias)
-    gate = None if config.gate_probability is None else chi2.ppf(config.gate_probability, 4)
-    dt, twists = interval_twists(seq, config)
-    last_frame = seq.track_last_frame()
-    Tn = seq.n_frames
-
-    est = Estimate.empty(ESTIMATOR_NAME, seq.timestamps, seq.n_tracks)
-    pose_P = np.zeros((Tn, 6, 6))
-
-    P0 = np.zeros((off, off))
-    P0[:6, :6] = config.initial_pose_cov
-    if use_bias:
-        P0[B_IDX, B_IDX] = config.gyro_bias_sigma**2 * np.eye(3)
-    st = _State(
-        T=np.eye(4),
-        landmarks=np.zeros((0, 3)),
-        tracks=np.zeros(0, dtype=np.int64),
-        P=P0,
-        bias=np.zeros(3) if use_bias else None,
-        retired=InvariantRetired(off) if config.keep_landmarks and not textbook else None,
-    )
-    slot_of = -np.ones(seq.n_tracks, dtype=np.int64)
-    done = np.zeros(seq.n_tracks, dtype=bool)
-    bias_hist = np.zeros((Tn, 3)) if use_bias else None
-    n_converted = 0
-
-    for t in range(Tn):
-        t0 = time.perf_counter()
-        if t > 0:
-            if not _propagate(st, twists[t - 1], dt[t - 1], W_chol, config, off):
-                raise guard.error(t, "state covariance not finite after prediction")
-            guard.check_state(t, st.T, st.P[:off, :off])
-        tracks, z = seq.frame(t)
-        slots = slot_of[tracks]
-        old = slots >= 0
-        try:
-            n_used, n_rej, n_num = _update(
-                st, slots[old], z[old], M, cam_T_imu, V, Vinv, gate, config, off
-            )
-        except UpdateRejected as exc:
-            guard.reject(t, str(exc), int(old.sum()))
-            n_used, n_rej, n_num = 0, int(old.sum()), 0
-        fresh = (~old) & (~done[tracks])
-        n_init, n_rej_new, n_num_new = _augment(
-            st, tracks[fresh], z[fresh], cal, imu_T_cam, V, config, off, slot_of
-        )
-        n_converted += _convert_linear(st, config, imu_T_cam, off)
-        if n_num + n_num_new:
-            guard.reject(t, "innovation covariance or triangulation not finite", n_num + n_num_new)
-        if not config.keep_landmarks or st.retired is not None:
-            _marginalise(st, last_frame, t, off, slot_of, done, est)
-        est.poses[t] = st.T
-        pose_P[t] = st.P[:6, :6]
-        if use_bias:
-            bias_hist[t] = st.bias
-        est.n_updates[t] = n_used
-        est.n_rejected[t] = n_rej + n_rej_new
-        est.n_initialised[t] = n_init
-        est.step_time_s[t] = time.perf_counter() - t0
-        if progress is not None:
-            progress(t + 1)
-
-    # Landmarks still in the state at the end.
-    if st.tracks.size:
-        slots = np.arange(st.tracks.size)
-        est.landmarks[st.tracks], est.landmark_cov[st.tracks] = st.world_landmarks(slots, off)
-    if st.retired is not None and st.retired.n:
-        est.landmarks[st.retired.track], est.landmark_cov[st.retired.track] = st.retired.world(st.P)
-    est.pose_cov = left_cov_to_estimate(est.poses, pose_P)
-    est.pose_cov = 0.5 * (est.pose_cov + np.swapaxes(est.pose_cov, -1, -2))
-    if config.landmark_parameterisation == "inverse-depth":
-        est.info["inverse_depth_converted"] = n_converted
-    if use_bias:
-        est.info["gyro_bias"] = bias_hist[-1].tolist()
-        est.info["gyro_bias_sigma_final"] = np.sqrt(np.diag(st.P[B_IDX, B_IDX])).tolist()
-    return est
-
-
-def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConfig, off: int) -> bool:
+def _propagate(st: InvariantState, u: np.ndarray, tau: float, W_chol, config: FilterConfig, off: int) -> bool:
     """Paper eq. 11 in group form: ``T <- T exp(tau u)``; ``P <- P + tau^2 B W B^T`` (the error
     transition is the identity), plus the bias coupling with a gyro-bias state. Inverse-depth
     slots get no noise and no bias coupling: their rows of ``B`` are zero.
@@ -405,7 +413,7 @@ def _propagate(st: _State, u: np.ndarray, tau: float, W_chol, config: FilterConf
     return True
 
 
-def _predict_retired(st: _State, twist, tau, W_chol, config, BL, F) -> None:
+def _predict_retired(st: InvariantState, twist, tau, W_chol, config, BL, F) -> None:
     """The retired landmarks' share of a prediction (RI-1): ``BL`` (dim A, 6) the twist noise
     rows of the active state, ``F`` (dim A, 3) its bias coupling (None without a bias); called
     before ``st.T`` moves (the retired rows take the pose at the start of the step)."""
@@ -419,7 +427,7 @@ def _predict_retired(st: _State, twist, tau, W_chol, config, BL, F) -> None:
     st.retired.predict(st.T, twist, tau, W_chol, N_A, F, st.P)
 
 
-def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterConfig, off: int):
+def _update(st: InvariantState, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterConfig, off: int):
     """Stacked update (paper eq. 14 in group form: ``X <- exp(K r) X``) with the frame's
     observations of landmarks already in the state; returns (used, rejected, numerical), the
     last the observations rejected (and counted in ``rejected``) because their own innovation
@@ -562,7 +570,7 @@ def _update(st: _State, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterCon
     return k, n_rej, n_num
 
 
-def _transport_inverse_depth(st: _State, ids: np.ndarray, x_prior: np.ndarray, off: int) -> np.ndarray:
+def _transport_inverse_depth(st: InvariantState, ids: np.ndarray, x_prior: np.ndarray, off: int) -> np.ndarray:
     """Keep the world-change directions unobservable for inverse-depth slots ``ids`` after an
     update (module docstring): ``P <- T P T^T``, ``T`` adding ``N_j(x+) - N_j(x-)`` (ID-7)
     times the pose rows to the rows of slot j. Returns those rows ``C`` (3K, 6)."""
@@ -574,7 +582,7 @@ def _transport_inverse_depth(st: _State, ids: np.ndarray, x_prior: np.ndarray, o
     return C
 
 
-def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off, slot_of):
+def _augment(st: InvariantState, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off, slot_of):
     """Add triangulated landmarks of tracks seen for the first time (or never accepted yet).
 
     Returns ``(initialised, rejected, numerical)``, the last the tracks (counted in
@@ -651,7 +659,7 @@ def _augment(st: _State, tracks, z, cal, imu_T_cam, V, config: FilterConfig, off
     return k, n_rej, n_num
 
 
-def _convert_linear(st: _State, config: FilterConfig, imu_T_cam: np.ndarray, off: int) -> int:
+def _convert_linear(st: InvariantState, config: FilterConfig, imu_T_cam: np.ndarray, off: int) -> int:
     """Inverse-depth slots whose linearity index (ID-5) seen from the current camera is below
     ``inverse_depth_linearity`` join the group (:func:`_to_group`); returns how many."""
     if config.inverse_depth_linearity <= 0:
@@ -672,7 +680,7 @@ def _convert_linear(st: _State, config: FilterConfig, imu_T_cam: np.ndarray, off
     return int(ids.size)
 
 
-def _to_group(st: _State, ids: np.ndarray, off: int) -> None:
+def _to_group(st: InvariantState, ids: np.ndarray, off: int) -> None:
     """Inverse-depth slots ``ids`` to group landmarks ``l = m(x)`` (ID-6): their error becomes
     ``xi_l = J dx + l^ xi_R`` (``l_true - l ~ -l^ xi_R + xi_l``), ``P <- T P T^T``."""
     x, R_a = st.landmarks[ids], st.anchor_R[ids]
@@ -689,11 +697,13 @@ def _to_group(st: _State, ids: np.ndarray, off: int) -> None:
     st.lm_id[ids] = False
 
 
-def _marginalise(st: _State, last_frame, t, off, slot_of, done, est: Estimate) -> None:
-    """Drop landmarks whose track ended at frame ``t``; keep their mean and world covariance."""
+def _marginalise(st: InvariantState, ended_tracks: np.ndarray, off, slot_of, done,
+                 map_mean: np.ndarray, map_cov: np.ndarray) -> None:
+    """Drop the landmarks of the tracks marked in ``ended_tracks`` (n_tracks,) bool; keep their
+    mean and world covariance in ``map_mean``, ``map_cov``."""
     if st.tracks.size == 0:
         return
-    ended = last_frame[st.tracks] <= t
+    ended = ended_tracks[st.tracks]
     if not ended.any():
         return
     gone = np.flatnonzero(ended)
@@ -703,7 +713,7 @@ def _marginalise(st: _State, last_frame, t, off, slot_of, done, est: Estimate) -
     slot_of[tr] = -1
     idx = np.concatenate([np.arange(off), (off + 3 * keep[:, None] + np.arange(3)).ravel()])
     if st.retired is None:
-        est.landmarks[tr], est.landmark_cov[tr] = st.world_landmarks(gone, off)
+        map_mean[tr], map_cov[tr] = st.world_landmarks(gone, off)
     else:  # keep_landmarks: they stay refined as regressions on what remains
         rows = off + 3 * gone[:, None] + np.arange(3)
         st.retired.retire(st.P, idx, rows, st.landmarks[gone], st.landmarks[gone], tr,

@@ -19,7 +19,7 @@
   columns is exact for a Gaussian); their final mean and 3x3 covariance go to the map.
   ``config.keep_landmarks`` keeps every landmark in the state instead (textbook EKF SLAM): an
   ended track's landmark keeps being refined through its cross-covariance with the pose. Its
-  rows are kept exactly, and cheaply, by :class:`ekf.retired.RetiredLandmarks`;
+  rows are kept exactly, and cheaply, by :class:`ekf.kept_landmarks.KeptLandmarks`;
   ``run_joint(..., textbook=True)`` runs the dense ``O(n^2)`` form instead (the reference).
 """
 
@@ -35,7 +35,7 @@ from vislam.ekf.numerics import (NumericalGuard, Scratch, UpdateRejected, add_po
                                  all_finite, finite_norm2, finite_rows)
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.geometry import adjoint, hat, se3_inv
-from vislam.ekf.retired import RetiredLandmarks, oc_transport_rows
+from vislam.ekf.kept_landmarks import KeptLandmarks, oc_transport_rows
 from vislam.ekf.prediction import (
     se3_exp_single,
     bias_transition,
@@ -43,16 +43,10 @@ from vislam.ekf.prediction import (
     prediction_jacobian,
     process_noise,
 )
-from vislam.ekf.runner import (
-    Progress,
-    StepRecorder,
-    blas_limits,
-    build_estimate,
-    interval_twists,
-    prepare_sequence,
-    report_progress,
-    tracks_ending,
-)
+from vislam.ekf.conventions import ekf_cov_to_estimate
+from vislam.ekf.driver import run_filter
+from vislam.ekf.filter import FrameObservations, Landmarks, MotionInput, UpdateCounts
+from vislam.ekf.runner import Progress
 from vislam.ekf.sequence import Sequence
 from vislam.ekf.stereo_update import StereoModel
 
@@ -89,7 +83,7 @@ class JointState:
         self.map_mean = np.full((n_tracks, 3), np.nan)
         self.map_cov = np.full((n_tracks, 3, 3), np.nan)
         # keep_landmarks: ended tracks' landmarks leave the active state but keep their rows.
-        self.retired = RetiredLandmarks(self.core) if config.keep_landmarks and not textbook else None
+        self.retired = KeptLandmarks(self.core) if config.keep_landmarks and not textbook else None
         self.scratch = Scratch()
 
     @property
@@ -257,12 +251,12 @@ class JointState:
 
     def update_retired(self, dx, E, U_prior, dm, x_prior) -> None:
         """The retired landmarks' share of an update (``dx`` the active increment) and of the
-        transport that follows it (:meth:`ekf.retired.RetiredLandmarks.update`)."""
+        transport that follows it (:meth:`ekf.kept_landmarks.KeptLandmarks.update`)."""
         C_a = self.transport_rows(dm, x_prior, U_prior) if self.linearisation == "oc" else None
         self.retired.update(dx, self.linearisation, E, C_a, U_prior)
 
     def transport_rows(self, dm: np.ndarray, x_prior: np.ndarray, U_prior: np.ndarray) -> np.ndarray:
-        """The landmark rows ``C`` (3n, 6) of :func:`transport` (:func:`ekf.retired.oc_transport_rows`
+        """The landmark rows ``C`` (3n, 6) of :func:`transport` (:func:`ekf.kept_landmarks.oc_transport_rows`
         of the active landmarks; for Euclidean ones :func:`gauge_transport`'s ``[0, dm^ R-^T]``)."""
         inverse = self.lm_id if self.inverse_depth else np.zeros(self.n_landmarks, dtype=bool)
         return oc_transport_rows(dm, x_prior, self.lm_mean, inverse, self.anchor_R, self.anchor_p,
@@ -357,7 +351,8 @@ class JointState:
 
         ``J`` is taken at the linearisation point of the landmark's Jacobians: the current
         estimate, or with "fej" the first one (so that ``J N(x_first) = [I, -m_first^]``, the
-        Euclidean first-estimate nullspace; at the current estimate FEJ's ANEES went 5 -> 61)."""
+        Euclidean first-estimate nullspace; taken at the current estimate, FEJ's nullspace would
+        be lost)."""
         x, R_a, p_a = self.lm_mean[ids], self.anchor_R[ids], self.anchor_p[ids]
         J = idp.world_jacobian(self.lm_first[ids] if self.linearisation == "fej" else x, R_a)
         rows = self.landmark_rows(ids)  # (k, 3)
@@ -436,8 +431,8 @@ class JointState:
 def symmetric_downdate(P: np.ndarray, Y: np.ndarray, work: np.ndarray) -> None:
     """``P <- P - Y^T Y`` in place, ``work`` (N, N) memory for ``Y^T Y``. NumPy computes
     ``Y^T Y`` with BLAS ``syrk`` and mirrors it, so the product is exactly symmetric and ``P``
-    stays as symmetric as it was (15 % faster than ``syrk`` into ``P`` followed by a masked
-    mirror copy, on 0034's 375-row states)."""
+    stays as symmetric as it was (and it is faster than ``syrk`` into ``P`` followed by a
+    masked mirror copy)."""
     P -= np.matmul(Y.T, Y, out=work)
 
 
@@ -494,61 +489,90 @@ def transport(P: np.ndarray, core: int, E: np.ndarray, C: np.ndarray) -> None:
     P[:, :6] = P[:, :6] @ A.T
 
 
+class JointEKF:
+    """Joint EKF SLAM with the full pose-landmark covariance (see the module docstring): the
+    per-frame protocol (:mod:`ekf.filter`) around a :class:`JointState`.
+
+    ``textbook`` (with ``config.keep_landmarks``): keep every landmark in one dense covariance,
+    ``O(n^2)`` per update, instead of :class:`ekf.kept_landmarks.KeptLandmarks`' exact rows (the
+    same numbers; the reference for the test of the latter)."""
+
+    name = "ekf-joint"
+
+    def __init__(self, textbook: bool = False):
+        self.textbook = bool(textbook)
+
+    def initialise(self, seq: Sequence, config: FilterConfig, guard: NumericalGuard) -> None:
+        self.config = config
+        self.guard = guard
+        self.model = StereoModel.from_config(seq.calibration, config)
+        self.last = seq.track_last_frame()
+        self.state = JointState(config, seq.n_tracks, self.textbook)
+        self.max_dim = self.state.state_dim
+
+    def predict(self, motion: MotionInput) -> None:
+        st = self.state
+        st.predict(motion.dt, motion.twist, self.config)
+        self.guard.check_state(motion.frame, st.U, st.P[:st.core, :st.core])
+
+    def update(self, frame: FrameObservations) -> UpdateCounts:
+        st, model, guard = self.state, self.model, self.guard
+        t, tracks, z = frame.frame, frame.tracks, frame.z
+        valid = model.valid_observations(z, depth_limit=False)
+        active = st.slot[tracks] >= 0
+        upd = valid & active
+        valid &= model.within_max_depth(z)  # new landmarks: within max_depth too
+        try:
+            n_acc, n_rej = st.update(model, tracks[upd], z[upd])
+            n_num = st.n_numerical
+        except UpdateRejected as exc:
+            guard.reject(t, str(exc), int(upd.sum()))
+            n_acc, n_num = 0, 0
+        new = valid & ~active & ~st.ever[tracks]
+        n_bad_init = st.initialise(model, tracks[new], z[new], self.last[tracks[new]] <= t)
+        n_init = int(new.sum()) - n_bad_init
+        n_num += n_bad_init
+        if n_num:
+            guard.reject(t, "innovation covariance or triangulation not finite", n_num)
+        st.convert_linear(model)
+        self.max_dim = max(self.max_dim, st.state_dim)
+        return UpdateCounts(n_acc, tracks.size - n_acc - n_init, n_init)
+
+    def marginalise(self, tracks: np.ndarray) -> None:
+        if not self.config.keep_landmarks or self.state.retired is not None:
+            self.state.marginalise(tracks)
+
+    def pose(self) -> np.ndarray:
+        return se3_inv(self.state.U)
+
+    def pose_cov(self) -> np.ndarray:
+        return ekf_cov_to_estimate(self.state.P[:6, :6])
+
+    def active_landmarks(self) -> Landmarks:
+        st = self.state
+        if not st.n_landmarks:
+            return Landmarks.none()
+        return Landmarks(st.lm_track.copy(), *st.world_landmarks(np.arange(st.n_landmarks)))
+
+    def landmark_map(self) -> tuple[np.ndarray, np.ndarray]:
+        st = self.state
+        mean, cov = st.map_mean.copy(), st.map_cov.copy()
+        if st.retired is not None and st.retired.n:
+            mean[st.retired.track], cov[st.retired.track] = st.retired.world(st.P)
+        return mean, cov
+
+    def info(self) -> dict:
+        info = {"max_state_dim": int(self.max_dim)}
+        if self.state.inverse_depth:
+            info["inverse_depth_converted"] = self.state.n_converted
+        if self.config.gyro_bias:
+            info["gyro_bias"] = self.state.bias.tolist()
+        return info
+
+
 def run_joint(
     seq: Sequence, config: FilterConfig = FilterConfig(), progress: Progress = None,
     textbook: bool = False,
 ) -> Estimate:
-    """Joint EKF SLAM with the full pose-landmark covariance (see the module docstring).
-
-    ``textbook`` (with ``config.keep_landmarks``): keep every landmark in one dense covariance,
-    ``O(n^2)`` per update, instead of :class:`ekf.retired.RetiredLandmarks`' exact rows (the
-    same numbers; the reference for the test of the latter)."""
-    seq, info = prepare_sequence(seq, config)
-    rec = StepRecorder(seq.n_frames)
-    model = StereoModel.from_config(seq.calibration, config)
-    tau, u = interval_twists(seq, config)
-    ending = tracks_ending(seq)
-    last = seq.track_last_frame()
-    st = JointState(config, seq.n_tracks, textbook)
-    guard = NumericalGuard("ekf-joint", seq.timestamps)
-    c = st.core
-    max_dim = st.state_dim
-    with blas_limits(config):
-        for t in range(seq.n_frames):
-            tracks, z = seq.frame(t)
-            with rec.step(t):
-                if t > 0:
-                    st.predict(tau[t - 1], u[t - 1], config)
-                    guard.check_state(t, st.U, st.P[:c, :c])
-                valid = model.valid_observations(z, depth_limit=False)
-                active = st.slot[tracks] >= 0
-                upd = valid & active
-                valid &= model.within_max_depth(z)  # new landmarks: within max_depth too
-                try:
-                    n_acc, n_rej = st.update(model, tracks[upd], z[upd])
-                    n_num = st.n_numerical
-                except UpdateRejected as exc:
-                    guard.reject(t, str(exc), int(upd.sum()))
-                    n_acc, n_num = 0, 0
-                new = valid & ~active & ~st.ever[tracks]
-                n_bad_init = st.initialise(model, tracks[new], z[new], last[tracks[new]] <= t)
-                n_init = int(new.sum()) - n_bad_init
-                n_num += n_bad_init
-                if n_num:
-                    guard.reject(t, "innovation covariance or triangulation not finite", n_num)
-                st.convert_linear(model)
-                max_dim = max(max_dim, st.state_dim)
-                if not config.keep_landmarks or st.retired is not None:
-                    st.marginalise(ending[t])
-                rec.n_updates[t] = n_acc
-                rec.n_initialised[t] = n_init
-                rec.n_rejected[t] = tracks.size - n_acc - n_init
-                rec.record_pose(t, st.U, st.P[:6, :6])
-            report_progress(progress, t, seq.n_frames)
-    st.flush()
-    info["max_state_dim"] = int(max_dim)
-    if st.inverse_depth:
-        info["inverse_depth_converted"] = st.n_converted
-    if config.gyro_bias:
-        info["gyro_bias"] = st.bias.tolist()
-    return build_estimate("ekf-joint", seq, rec, st.map_mean, st.map_cov, config, info, guard)
+    """:class:`JointEKF` over ``seq`` (:func:`ekf.driver.run_filter`)."""
+    return run_filter(JointEKF(textbook), seq, config, progress)

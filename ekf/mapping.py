@@ -11,10 +11,12 @@ from __future__ import annotations
 import numpy as np
 
 from vislam.ekf.config import FilterConfig
-from vislam.ekf.dead_reckoning import dead_reckon
+from vislam.ekf.dead_reckoning import DeadReckoning
+from vislam.ekf.driver import run_filter
 from vislam.ekf.estimate import Estimate
+from vislam.ekf.filter import FrameObservations, Landmarks, UpdateCounts
 from vislam.ekf.numerics import NumericalGuard, all_finite, finite_rows
-from vislam.ekf.runner import Progress, StepRecorder, blas_limits, build_estimate, prepare_sequence
+from vislam.ekf.runner import Progress
 from vislam.ekf.sequence import Sequence
 from vislam.ekf.stereo_update import StereoModel, batched_landmark_update_checked
 
@@ -62,25 +64,46 @@ class LandmarkMap:
         n_rej = int(tracks.size - n_upd - n_init)
         return n_upd, n_rej, n_init, n_num
 
+    def landmarks(self, tracks: np.ndarray) -> Landmarks:
+        """Means and covariances of ``tracks`` (copies)."""
+        return Landmarks(tracks, self.mean[tracks], self.cov[tracks])
+
+    def ended_map(self, ended: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Means and covariances of the ``ended`` tracks (n_tracks,) bool, NaN elsewhere (copies)."""
+        return (np.where(ended[:, None], self.mean, np.nan),
+                np.where(ended[:, None, None], self.cov, np.nan))
+
+
+class Mapping(DeadReckoning):
+    """Dead-reckoned poses (:class:`ekf.dead_reckoning.DeadReckoning`), the landmark EKF
+    (:class:`LandmarkMap`) along them."""
+
+    name = "mapping"
+
+    def initialise(self, seq: Sequence, config: FilterConfig, guard: NumericalGuard) -> None:
+        super().initialise(seq, config, guard)
+        self.model = StereoModel.from_config(seq.calibration, config)
+        self.lm = LandmarkMap(seq.n_tracks)
+        self.ended = np.zeros(seq.n_tracks, dtype=bool)
+
+    def update(self, frame: FrameObservations) -> UpdateCounts:
+        n_upd, n_rej, n_init, n_num = self.lm.observe(self.model, self.U, frame.tracks, frame.z)
+        if n_num:
+            self.guard.reject(frame.frame, "landmark update or initialisation not finite", n_num)
+        return UpdateCounts(n_upd, n_rej, n_init)
+
+    def marginalise(self, tracks: np.ndarray) -> None:
+        self.ended[tracks] = True
+
+    def active_landmarks(self) -> Landmarks:
+        return self.lm.landmarks(np.flatnonzero(self.lm.initialised & ~self.ended))
+
+    def landmark_map(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.lm.ended_map(self.ended)
+
 
 def run_mapping(
     seq: Sequence, config: FilterConfig = FilterConfig(), progress: Progress = None
 ) -> Estimate:
-    """Dead-reckoned poses, then the landmark EKF along them."""
-    seq, info = prepare_sequence(seq, config)
-    rec = StepRecorder(seq.n_frames)
-    model = StereoModel.from_config(seq.calibration, config)
-    lm = LandmarkMap(seq.n_tracks)
-    guard = NumericalGuard("mapping", seq.timestamps)
-    with blas_limits(config):
-        Us, _ = dead_reckon(seq, config, rec, None, name="mapping")
-        for t in range(seq.n_frames):
-            tracks, z = seq.frame(t)
-            with rec.step(t):
-                n_upd, n_rej, n_init, n_num = lm.observe(model, Us[t], tracks, z)
-                if n_num:
-                    guard.reject(t, "landmark update or initialisation not finite", n_num)
-            rec.n_updates[t], rec.n_rejected[t], rec.n_initialised[t] = n_upd, n_rej, n_init
-            if progress is not None and ((t + 1) % 10 == 0 or t + 1 == seq.n_frames):
-                progress(t + 1)
-    return build_estimate("mapping", seq, rec, lm.mean, lm.cov, config, info, guard)
+    """:class:`Mapping` over ``seq`` (:func:`ekf.driver.run_filter`)."""
+    return run_filter(Mapping(), seq, config, progress)

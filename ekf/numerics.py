@@ -155,8 +155,8 @@ def add_pose_rows(P: np.ndarray, core: int, C: np.ndarray) -> None:
 
     ``T P T^T = P + C_z W^T + V C_z^T`` with ``W = P[:, :6]``, ``C_z`` the rows of ``C`` at
     ``core:`` and ``V = W + C_z P_pp`` (the new pose columns): one GEMM of inner size 12 over
-    the whole matrix, in place, instead of a row-block and then a column-block update (half the
-    time on 0034's 375-row states). The terms are grouped as in those two steps,
+    the whole matrix, in place, instead of a row-block and then a column-block update (about
+    half the time). The terms are grouped as in those two steps,
     ``P_ll + C P_pl + (P_lp + C P_pp) C^T``: where the transport cancels a large correlation
     (a landmark far from where it was, pixels 1e5 px off) the symmetric split
     ``C W'^T + W' C^T`` with ``W' = W + C P_pp / 2`` lost the result to rounding."""

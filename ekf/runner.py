@@ -1,21 +1,7 @@
-"""Pieces every EKF estimator loop shares: cleaning, BLAS pinning, timing, counters, track
-bookkeeping, and building the :class:`~ekf.estimate.Estimate`.
-
-A typical estimator::
-
-    seq, info = prepare_sequence(seq, config)
-    rec = StepRecorder(seq.n_frames)
-    with blas_limits(config):
-        for t in range(seq.n_frames):
-            with rec.step(t):
-                ...                          # predict / update; rec.n_updates[t] += ...
-                rec.record_pose(t, U, Sigma)
-            report_progress(progress, t)
-    return build_estimate("name", seq, rec, landmarks, landmark_cov, config, info)
-
-The EKF state is the inverse pose ``U = imu_T_world``; :meth:`StepRecorder.record_pose` stores
-``world_T_imu = U^-1`` and the pose covariance, which is identical in the Estimate convention
-(``xi = -d``, :mod:`ekf.conventions`).
+"""What every estimator does before and after its work: validating and cleaning the sequence,
+BLAS pinning, per-frame timing and counters, track bookkeeping, and building and checking the
+:class:`~ekf.estimate.Estimate`. The per-frame loop that uses them is :func:`ekf.driver.run_filter`;
+the smoothers (graph/) use :func:`prepare_sequence` and :func:`finish_estimate`.
 """
 
 from __future__ import annotations
@@ -30,10 +16,8 @@ from threadpoolctl import threadpool_limits
 
 from vislam.ekf.cleaning import clean_sequence
 from vislam.ekf.config import FilterConfig
-from vislam.ekf.conventions import ekf_cov_to_estimate
 from vislam.ekf.errors import InputError
 from vislam.ekf.estimate import Estimate
-from vislam.ekf.geometry import se3_inv
 from vislam.ekf.numerics import NumericalGuard, check_finite_trajectory
 from vislam.ekf.prediction import paired_velocities
 from vislam.ekf.sequence import Sequence
@@ -148,11 +132,6 @@ class StepRecorder:
             yield
         finally:
             self.step_time_s[t] += time.perf_counter() - t0
-
-    def record_pose(self, t: int, U: np.ndarray, Sigma_ekf: np.ndarray) -> None:
-        """Store the EKF state (inverse pose, 6x6 EKF covariance) in the Estimate convention."""
-        self.poses[t] = se3_inv(U)
-        self.pose_cov[t] = ekf_cov_to_estimate(Sigma_ekf)
 
 
 def build_estimate(

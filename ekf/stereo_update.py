@@ -124,8 +124,7 @@ class StereoModel:
         The depth limit is for starting a landmark. An observation of a landmark already in the
         state is checked by its *predicted* depth (:meth:`valid_predictions`) instead: keeping
         only the observations whose own noisy disparity is large enough keeps the noise draws
-        that make a point look near, a biased sample (with landmarks to 100 m and the cut at
-        100 m, ekf-joint's pose ANEES over 10 runs was 50 against ekf-invariant's 9.4)."""
+        that make a point look near, a biased sample that makes the filter overconfident."""
         z = np.asarray(z, dtype=float)
         disparity = z[:, 0] - z[:, 2]
         ok = np.all(np.isfinite(z), axis=1) & (disparity > 0) & (disparity >= self.min_disparity)

@@ -1,9 +1,11 @@
-"""vislam's own estimators under the estimator protocol (:mod:`vislam.eval.registry`).
+"""vislam's own estimators as whole-drive callables ``(seq, settings) -> Estimate``
+(:mod:`vislam.eval.registry`).
 
-Each is a callable ``(seq, settings) -> Estimate``, registered in ``pyproject.toml`` as an entry
-point of the group ``vislam.estimators``: the same mechanism and the same contract as a user's
-estimator. The EKFs' modules (numpy and scipy only) and GTSAM are imported only when an
-estimator runs, so ``vislam run -e ekf-joint`` never imports GTSAM.
+The smoothers are registered from here in ``pyproject.toml`` (entry points of the group
+``vislam.estimators``: the same mechanism and the same contract as a user's estimator); GTSAM is
+imported only when one runs, so ``vislam run -e ekf-joint`` never imports GTSAM. The per-frame
+filters are registered as their classes (:mod:`vislam.ekf.estimators`); their whole-drive forms
+here serve code that wraps one (a user's estimator that post-processes an EKF's estimate).
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ from vislam.ekf.estimate import Estimate
 from vislam.ekf.sequence import Sequence
 
 
-def _ekf(name: str, seq: Sequence, settings) -> Estimate:
+def _filter(name: str, seq: Sequence, settings) -> Estimate:
     from vislam.ekf.estimators import ESTIMATORS
 
     return ESTIMATORS[name](seq, settings.filter, settings.progress)
@@ -20,27 +22,27 @@ def _ekf(name: str, seq: Sequence, settings) -> Estimate:
 
 def dead_reckoning(seq: Sequence, settings) -> Estimate:
     """Velocities only (the paper's prediction step, no vision)."""
-    return _ekf("dead-reckoning", seq, settings)
+    return _filter("dead-reckoning", seq, settings)
 
 
 def mapping(seq: Sequence, settings) -> Estimate:
     """Dead-reckoned poses, landmarks mapped from them (no pose update)."""
-    return _ekf("mapping", seq, settings)
+    return _filter("mapping", seq, settings)
 
 
 def ekf_decoupled(seq: Sequence, settings) -> Estimate:
     """The paper's Algorithm 1 as written: pose and landmarks updated apart."""
-    return _ekf("ekf-decoupled", seq, settings)
+    return _filter("ekf-decoupled", seq, settings)
 
 
 def ekf_joint(seq: Sequence, settings) -> Estimate:
     """Pose and active landmarks in one state, with their cross-covariance."""
-    return _ekf("ekf-joint", seq, settings)
+    return _filter("ekf-joint", seq, settings)
 
 
 def ekf_invariant(seq: Sequence, settings) -> Estimate:
     """The right-invariant EKF on SE_K(3)."""
-    return _ekf("ekf-invariant", seq, settings)
+    return _filter("ekf-invariant", seq, settings)
 
 
 def smoother(seq: Sequence, settings) -> Estimate:

@@ -1,6 +1,12 @@
-"""The estimator protocol, and estimators by name: vislam's own and a user's, alike.
+"""The estimator protocols, and estimators by name: vislam's own and a user's, alike.
 
-**The protocol.** An estimator is a callable ``estimate(seq, settings) -> Estimate``:
+**Per-frame filters.** A class implementing :class:`vislam.ekf.filter.Filter` (initialise,
+predict, update, marginalise and read-outs of pose, covariance and landmarks) is run by the one
+per-frame loop, :func:`vislam.ekf.driver.run_filter`, exactly as vislam's EKFs are: a new instance
+per drive, ``settings.filter`` its FilterConfig.
+
+**Whole-drive estimators** (smoothers, systems run elsewhere). A callable
+``estimate(seq, settings) -> Estimate`` (:class:`Estimator`):
 
 - ``seq`` a :class:`vislam.ekf.sequence.Sequence` (timestamps, body velocities, stereo
   observations, camera model and ``cam_T_imu``);
@@ -22,14 +28,15 @@ scored or written.
 
 **Where estimators come from.** A name is looked up, in order:
 
-1. ``MODULE:FUNCTION`` (a dotted module importable from ``sys.path`` or the current folder, or a
-   ``path/to/file.py``): a user's estimator, without installing anything;
+1. ``MODULE:CLASS`` or ``MODULE:FUNCTION`` (a dotted module importable from ``sys.path`` or the
+   current folder, or a ``path/to/file.py``): a user's filter class or estimator, without
+   installing anything;
 2. the entry points of the group ``vislam.estimators`` of every installed package. vislam's own
-   (:mod:`vislam.eval.builtin`) are registered there by its ``pyproject.toml``; a user's package
-   adds its own in the same way::
+   are registered there by its ``pyproject.toml`` (the one list of their names:
+   :mod:`vislam.ekf.estimators`); a user's package adds its own in the same way::
 
        [project.entry-points."vislam.estimators"]
-       my-ekf = "my_package.filter:estimate"
+       my-ekf = "my_package.filter:MyFilter"
 
 A user's estimator gets everything a built-in one gets (tables, plots, vs-smoother scores, Monte
 Carlo NEES). A user's estimator that cannot be found, raises, or returns an Estimate that breaks
@@ -55,42 +62,31 @@ import numpy as np
 
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import EstimationError, InputError
+from vislam.ekf.estimate import Estimate
+from vislam.ekf.filter import is_filter_class
+from vislam.ekf.estimators import (DISTRIBUTION, ENTRY_POINT_GROUP, SMOOTHER_INITIALISERS,
+                                   builtin_entry_points, filter_names)
 from vislam.ekf.runner import COVARIANCE_RTOL, covariance_defects
 from vislam.graph.settings import SmootherSettings
 
 log = logging.getLogger(__name__)
 
+#: vislam's own entry points, as pyproject.toml registers them (:mod:`vislam.ekf.estimators`).
+BUILTIN_ENTRY_POINTS: dict[str, str] = builtin_entry_points()
+
 #: vislam's own estimators, in the order tables and plots list them.
-ESTIMATOR_NAMES: tuple[str, ...] = (
-    "dead-reckoning",
-    "mapping",
-    "ekf-decoupled",
-    "ekf-joint",
-    "ekf-invariant",
-    "smoother",
-    "smoother-isam2",
-    "smoother-fixed-lag",
-)
-
-#: The entry-point group every estimator is registered in.
-ENTRY_POINT_GROUP = "vislam.estimators"
-
-#: vislam's own entry points, as pyproject.toml registers them (a test checks the two agree). They
-#: are used as they are when the installed metadata lacks them (a checkout not reinstalled).
-BUILTIN_ENTRY_POINTS: dict[str, str] = {
-    name: f"vislam.eval.builtin:{name.replace('-', '_')}" for name in ESTIMATOR_NAMES
-}
+ESTIMATOR_NAMES: tuple[str, ...] = tuple(BUILTIN_ENTRY_POINTS)
 
 #: What ``vislam bench`` runs unless told otherwise: every estimator but the fixed-lag smoother
 #: (iSAM2 is in since it runs within twice the batch smoother's time: 0034 7 s against 11 s).
 DEFAULT_BENCH: tuple[str, ...] = tuple(n for n in ESTIMATOR_NAMES if n != "smoother-fixed-lag")
 
-#: The EKFs whose estimate the batch smoother starts from, first available wins (the same order
-#: as graph.smoother.EKF_INITIALISERS, which the smoother uses when it must run an EKF itself).
-SMOOTHER_INITIAL_FROM: tuple[str, ...] = ("ekf-invariant", "ekf-joint")
+#: The EKFs whose estimate the batch smoother starts from, first available wins.
+SMOOTHER_INITIAL_FROM: tuple[str, ...] = SMOOTHER_INITIALISERS
 
-#: Names of the smoothers (the references the EKFs are cross-validated against).
-SMOOTHERS: tuple[str, ...] = ("smoother", "smoother-isam2", "smoother-fixed-lag")
+#: Names of the smoothers (the references the EKFs are cross-validated against): vislam's own
+#: estimators that are whole-drive callables, not per-frame filters.
+SMOOTHERS: tuple[str, ...] = tuple(n for n in ESTIMATOR_NAMES if n not in filter_names())
 
 
 @dataclass(frozen=True)
@@ -104,7 +100,9 @@ class EstimatorSettings:
 
 
 class Estimator(Protocol):
-    def __call__(self, seq, settings: EstimatorSettings): ...
+    """A whole-drive estimator: ``estimate(seq, settings) -> Estimate`` (module docstring)."""
+
+    def __call__(self, seq, settings: EstimatorSettings) -> Estimate: ...
 
 
 class UserEstimatorError(InputError):
@@ -112,8 +110,8 @@ class UserEstimatorError(InputError):
 
 
 def is_user_spec(name: str) -> bool:
-    """``MODULE:FUNCTION`` names a user's estimator; a plain name is looked up in the entry
-    points."""
+    """``MODULE:CLASS`` or ``MODULE:FUNCTION`` names a user's estimator; a plain name is looked
+    up in the entry points."""
     return ":" in name
 
 
@@ -137,6 +135,8 @@ def entry_points() -> dict[str, str]:
 
     found = dict(BUILTIN_ENTRY_POINTS)
     for ep in installed(group=ENTRY_POINT_GROUP):
+        if ep.dist is not None and ep.dist.name == DISTRIBUTION:
+            continue  # vislam's own: BUILTIN_ENTRY_POINTS (its installed copy may be stale)
         if ep.name in BUILTIN_ENTRY_POINTS:
             if ep.value != BUILTIN_ENTRY_POINTS[ep.name]:
                 log.warning("ignoring entry point %s = %s: %r is vislam's own estimator",
@@ -152,15 +152,33 @@ def known_names() -> list[str]:
 
 
 def _valid_names() -> str:
-    return ", ".join(known_names()) + ", or MODULE:FUNCTION"
+    return ", ".join(known_names()) + ", or MODULE:CLASS / MODULE:FUNCTION"
+
+
+def filter_estimator(cls: type, name: str | None = None) -> Estimator:
+    """The whole-drive estimator of filter class ``cls``: a new ``cls()`` per drive through
+    :func:`vislam.ekf.driver.run_filter`, its Estimate named ``name`` (default: the class's
+    ``name``, else ``module:Class``)."""
+    from vislam.ekf.driver import run_filter
+
+    label = name or getattr(cls, "name", None) or display_name(cls)
+
+    def estimate(seq, settings: EstimatorSettings) -> Estimate:
+        return run_filter(cls(), seq, settings.filter, settings.progress, name=label)
+
+    estimate.__module__, estimate.__qualname__ = cls.__module__, cls.__qualname__
+    estimate.__name__, estimate.__doc__ = cls.__name__, cls.__doc__
+    estimate.filter_class = cls
+    return estimate
 
 
 @functools.lru_cache(maxsize=None)
 def _load(spec: str, user: bool) -> Callable:
-    """``module:function`` (``module`` dotted or a path to a .py file) -> the callable."""
+    """``module:attribute`` (``module`` dotted or a path to a .py file) -> the estimator: the
+    callable, or a filter class wrapped by :func:`filter_estimator`."""
     module_name, _, attr = spec.rpartition(":")
     if not module_name or not attr:
-        raise UserEstimatorError(f"estimator {spec!r}: expected MODULE:FUNCTION")
+        raise UserEstimatorError(f"estimator {spec!r}: expected MODULE:CLASS or MODULE:FUNCTION")
     try:
         if module_name.endswith(".py"):
             path = Path(module_name)
@@ -185,9 +203,12 @@ def _load(spec: str, user: bool) -> Callable:
         fn = getattr(fn, part, None)
         if fn is None:
             raise UserEstimatorError(f"estimator {spec!r}: {module_name} has no {attr!r}")
-    if not callable(fn):
-        raise UserEstimatorError(f"estimator {spec!r}: {attr!r} is a {type(fn).__name__}, "
-                                 "not a callable (seq, settings) -> Estimate")
+    if is_filter_class(fn):
+        return filter_estimator(fn)
+    if not callable(fn) or isinstance(fn, type):
+        what = f"class {fn.__name__}" if isinstance(fn, type) else f"a {type(fn).__name__}"
+        raise UserEstimatorError(f"estimator {spec!r}: {attr!r} is {what}, neither a Filter class "
+                                 "(vislam.filters.Filter) nor a callable (seq, settings) -> Estimate")
     return fn
 
 
@@ -209,8 +230,10 @@ def _import_module(name: str):
 
 
 def resolve(name) -> Callable:
-    """The protocol callable of estimator ``name`` (a name, ``MODULE:FUNCTION`` or a callable);
-    an unknown name is an InputError listing the valid ones."""
+    """The protocol callable of estimator ``name`` (a name, ``MODULE:CLASS``, ``MODULE:FUNCTION``,
+    a filter class or a callable); an unknown name is an InputError listing the valid ones."""
+    if is_filter_class(name):
+        return filter_estimator(name)
     if callable(name):
         return name
     if is_user_spec(name):

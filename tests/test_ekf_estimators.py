@@ -116,7 +116,7 @@ def _head(seq, n):
      ("euclidean", "oc", False), ("euclidean", "fej", True), ("euclidean", "standard", False)],
 )
 def test_keep_landmarks_equals_the_dense_textbook_update(noisy_sim, param, linearisation, bias):
-    """``keep_landmarks`` through :class:`ekf.retired.RetiredLandmarks` (regressions of the
+    """``keep_landmarks`` through :class:`ekf.kept_landmarks.KeptLandmarks` (regressions of the
     retired landmarks on the active state) gives the numbers of the dense joint covariance
     (``textbook=True``) to 1e-9: poses, pose covariances, every landmark's mean and covariance,
     after every track of a 70-frame drive has ended or been refined for tens of frames."""
@@ -149,7 +149,7 @@ def _assert_kept_as_dense(fast, dense, marg) -> None:
 @pytest.mark.parametrize("param, bias", [("inverse-depth", True), ("inverse-depth", False),
                                          ("euclidean", True), ("euclidean", False)])
 def test_invariant_keep_landmarks_equals_the_dense_textbook_update(noisy_sim, param, bias):
-    """ekf-invariant's ``keep_landmarks`` through :class:`ekf.retired_invariant.InvariantRetired`
+    """ekf-invariant's ``keep_landmarks`` through :class:`ekf.kept_landmarks_invariant.InvariantKeptLandmarks`
     (the retired landmarks take the pose's twist noise and the bias coupling, RI-1, and the
     group retraction) gives the numbers of its dense form to 1e-9, as ekf-joint's does."""
     from vislam.ekf.invariant import run_invariant

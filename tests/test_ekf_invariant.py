@@ -368,11 +368,11 @@ def test_bad_timestamps_raise_input_error():
         inv.run_invariant(seq2, SIM_CONFIG)
 
 
-def test_progress_is_called_per_frame():
+def test_progress_reports_frames_done_every_ten_and_at_the_end():
     seq, _, _ = simulate(16, n_frames=12, noise=False)
     seen = []
     inv.run_invariant(seq, SIM_CONFIG, progress=seen.append)
-    assert seen == list(range(1, 13))
+    assert seen == [10, 12]
 
 
 def test_clean_tracks_runs_and_reports_the_cleaned_track_origin():
@@ -387,4 +387,5 @@ def test_clean_tracks_runs_and_reports_the_cleaned_track_origin():
 def test_registered_in_the_estimator_registry():
     from vislam.ekf.estimators import ESTIMATORS
 
-    assert ESTIMATORS["ekf-invariant"] is inv.run_invariant
+    est = ESTIMATORS["ekf-invariant"](simulate(18, n_frames=20, noise=False)[0], SIM_CONFIG)
+    assert est.estimator == "ekf-invariant" and est.info["error_state"].startswith("right-invariant")

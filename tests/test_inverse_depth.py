@@ -245,7 +245,7 @@ def _invariant_state(seed=7, n=5, bias=False):
     off = inv.landmark_offset(bias)
     T = random_pose(rng)
     A = rng.normal(size=(off, off)) * 0.01
-    st = inv._State(T=T, landmarks=np.zeros((0, 3)), tracks=np.zeros(0, dtype=np.int64),
+    st = inv.InvariantState(T=T, landmarks=np.zeros((0, 3)), tracks=np.zeros(0, dtype=np.int64),
                     P=A @ A.T + 1e-4 * np.eye(off), bias=np.zeros(3) if bias else None)
     lms = np.array([visible_landmark(rng, T) for _ in range(n)])
     z = np.array([observe(T, m) for m in lms])

@@ -26,11 +26,11 @@ from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.sequence import Observations, Sequence
-from vislam.eval.registry import ESTIMATOR_NAMES, get_estimator
+from vislam.ekf.estimators import filter_names
+from vislam.eval.registry import ESTIMATOR_NAMES, SMOOTHERS, get_estimator
 from vislam.eval.simulate import SimConfig, simulate
 
-EKFS = ("dead-reckoning", "mapping", "ekf-decoupled", "ekf-joint", "ekf-invariant")
-SMOOTHERS = ("smoother", "smoother-isam2", "smoother-fixed-lag")
+EKFS = filter_names()  # the per-frame filters: the EKFs, dead reckoning and mapping
 assert set(EKFS + SMOOTHERS) == set(ESTIMATOR_NAMES)
 
 #: Examples per property test; the environment variable scales them for a long local sweep.
@@ -354,14 +354,14 @@ def test_joint_rejected_update_leaves_state_unchanged():
 
 
 def test_invariant_rejected_update_leaves_state_unchanged():
-    from vislam.ekf.invariant import _State, _update, landmark_offset
+    from vislam.ekf.invariant import InvariantState, _update, landmark_offset
     from vislam.ekf.numerics import UpdateRejected
 
     seq = base_drive(0)
     cfg = FilterConfig()
     cal = seq.calibration
     off = landmark_offset(True)
-    st_ = _State(T=np.eye(4), landmarks=np.array([[10.0, 1.0, 0.5], [15.0, -2.0, 1.0]]),
+    st_ = InvariantState(T=np.eye(4), landmarks=np.array([[10.0, 1.0, 0.5], [15.0, -2.0, 1.0]]),
                  tracks=np.array([0, 1]), P=-np.eye(off + 6), bias=np.zeros(3))
     q = (st_.landmarks @ cal.cam_T_imu[:3, :3].T + cal.cam_T_imu[:3, 3])
     z = np.stack([cal.M @ np.append(p / p[2], 1 / p[2]) for p in q])

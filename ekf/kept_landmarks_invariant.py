@@ -1,4 +1,4 @@
-"""Retired landmarks of ``ekf-invariant`` with ``keep_landmarks``: :mod:`ekf.retired`'s regressions
+"""Landmarks of ended tracks that ``ekf-invariant`` keeps with ``keep_landmarks``: :mod:`ekf.kept_landmarks`'s regressions
 ``x_j = F_j x_A + eps_j`` (RL-1) under the invariant filter's steps.
 
 The invariant filter differs from the joint one in three places, each handled exactly:
@@ -24,13 +24,13 @@ import numpy as np
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.geometry import hat
 from vislam.ekf.prediction import se3_left_jacobian, so3_exp_and_left_jacobian
-from vislam.ekf.retired import RetiredLandmarks, _blocks, _solve_spd
+from vislam.ekf.kept_landmarks import KeptLandmarks, landmark_blocks, solve_spd
 
 R_COLS = slice(3, 6)
 
 
-class InvariantRetired(RetiredLandmarks):
-    """:class:`ekf.retired.RetiredLandmarks` for the right-invariant EKF (see the module
+class InvariantKeptLandmarks(KeptLandmarks):
+    """:class:`ekf.kept_landmarks.KeptLandmarks` for the right-invariant EKF (see the module
     docstring); ``off`` the first landmark column (6, or 9 with a gyro bias)."""
 
     def __init__(self, off: int):
@@ -53,9 +53,9 @@ class InvariantRetired(RetiredLandmarks):
         N_j = (tau * Bj @ W_chol).reshape(-1, 6)
         N_j = np.concatenate([N_j, np.zeros((N_j.shape[0], N_A.shape[1] - 6))], axis=1)
         D = F @ N_A - N_j  # (3n, m)
-        Z = _solve_spd(P_new, N_A).T  # N_A^T P'^-1 (m, dim A)
+        Z = solve_spd(P_new, N_A).T  # N_A^T P'^-1 (m, dim A)
         K = np.eye(N_A.shape[1]) - Z @ N_A
-        Db = _blocks(D)
+        Db = landmark_blocks(D)
         self.E = self.E + Db @ (0.5 * (K + K.T)) @ Db.transpose(0, 2, 1)
         F -= D @ Z
 
@@ -101,7 +101,7 @@ class InvariantRetired(RetiredLandmarks):
         J = idp.world_jacobian(x, R_a)
         m = idp.world_point(x, R_a, self.anchor_p[ids])
         rows = (3 * ids[:, None] + np.arange(3)).ravel()
-        G = J @ _blocks(self.F[rows])
+        G = J @ landmark_blocks(self.F[rows])
         G[:, :, R_COLS] += hat(m)
         self.F[rows] = G.reshape(3 * ids.size, -1)
         self.E[ids] = J @ self.E[ids] @ J.transpose(0, 2, 1)
@@ -112,7 +112,7 @@ class InvariantRetired(RetiredLandmarks):
         """World means and covariances: a group landmark's ``dl = xi_l - l^ xi_R`` from the
         joint covariance of ``[xi_R, x_j]``; an inverse-depth one first order (ID-6)."""
         cov_x = self.covariances(P)  # RL-1
-        cross = _blocks(self.F) @ P[:, R_COLS]  # cov(x_j, xi_R)
+        cross = landmark_blocks(self.F) @ P[:, R_COLS]  # cov(x_j, xi_R)
         mean, cov = self.mean.copy(), cov_x.copy()
         g = np.flatnonzero(~self.inverse)
         if g.size:

@@ -1,10 +1,10 @@
-"""Retired landmarks of a keep-landmarks joint EKF, exactly and without the dense update.
+"""Landmarks of ended tracks that a joint EKF keeps in its state (``config.keep_landmarks``), held
+exactly and without the dense update. (A landmark *retires* when its track ends.)
 
 With ``config.keep_landmarks`` the joint EKF keeps every landmark in its state (textbook EKF
 SLAM), so that each later update still refines the landmarks of ended tracks through their
 cross-covariance with the pose. Written as one dense covariance that costs ``O(N^2)`` per update
-for ``N`` = 3 x every landmark ever seen: on a 1224-frame KITTI drive ``N`` is 27 000 and the
-run does not finish. The same numbers are cheap (in the spirit of Guivant and Nebot's compressed
+for ``N`` = 3 x every landmark ever seen, which grows with the drive without bound. The same numbers are cheap (in the spirit of Guivant and Nebot's compressed
 EKF, 2001: a landmark that is not observed needs no per-update work of its own):
 
 A retired landmark ``x_j`` (its track has ended) is never observed again. Write it as its
@@ -42,7 +42,7 @@ from vislam.ekf import inverse_depth as idp
 from vislam.ekf.geometry import adjoint, hat, se3_inv
 
 
-def _blocks(F: np.ndarray) -> np.ndarray:
+def landmark_blocks(F: np.ndarray) -> np.ndarray:
     """(3n, m) rows as (n, 3, m) landmark blocks."""
     return F.reshape(-1, 3, F.shape[1])
 
@@ -65,7 +65,7 @@ def oc_transport_rows(dm: np.ndarray, x_prior: np.ndarray, x_new: np.ndarray, in
     return C
 
 
-def _solve_spd(P: np.ndarray, B: np.ndarray) -> np.ndarray:
+def solve_spd(P: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``P^-1 B`` for a symmetric positive definite ``P`` (Cholesky; LU if that fails)."""
     try:
         return cho_solve(cho_factor(P, lower=True, check_finite=False), B, check_finite=False)
@@ -73,7 +73,7 @@ def _solve_spd(P: np.ndarray, B: np.ndarray) -> np.ndarray:
         return np.linalg.solve(P, B)
 
 
-class RetiredLandmarks:
+class KeptLandmarks:
     """Retired landmarks as regressions on the active state (RL-1): ``F`` (3n, dim A), the
     residual covariances ``E`` (n, 3, 3), the means, and what the map output needs."""
 
@@ -94,7 +94,7 @@ class RetiredLandmarks:
     def covariances(self, P: np.ndarray, which: np.ndarray | None = None) -> np.ndarray:
         """(RL-1) ``F_j P F_j^T + E_j`` (k, 3, 3) for ``which`` (all by default); ``P`` the
         active covariance."""
-        Fb = _blocks(self.F)
+        Fb = landmark_blocks(self.F)
         E = self.E
         if which is not None:
             Fb, E = Fb[which], E[which]
@@ -107,7 +107,7 @@ class RetiredLandmarks:
         the indices of the active state that remains."""
         L = rows.ravel()
         P_RR, P_LR = P[np.ix_(keep, keep)], P[np.ix_(L, keep)]
-        F_L = _solve_spd(P_RR, P_LR.T).T  # (3k, dim R)
+        F_L = solve_spd(P_RR, P_LR.T).T  # (3k, dim R)
         cond = P[np.ix_(L, L)] - F_L @ P_LR.T  # cov(x_L | x_R)
         cond = 0.5 * (cond + cond.T)
         n3 = self.F.shape[0]
@@ -116,7 +116,7 @@ class RetiredLandmarks:
         if n3:
             F_old = self.F[:, L]
             dgemm(1.0, F_L.T, F_old.T, beta=1.0, c=F[:n3].T, overwrite_c=1)  # += F_.L F_L
-            self.E = self.E + np.einsum("nim,njm->nij", _blocks(F_old @ cond), _blocks(F_old))
+            self.E = self.E + np.einsum("nim,njm->nij", landmark_blocks(F_old @ cond), landmark_blocks(F_old))
         F[n3:] = F_L
         k = track.size
         own = cond.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :]
@@ -146,8 +146,8 @@ class RetiredLandmarks:
         F[:, :c] = F[:, :c] @ np.linalg.inv(Phi)
         I_c = np.zeros((P_new.shape[0], c))
         I_c[np.arange(c), np.arange(c)] = 1.0
-        Pinv_c = _solve_spd(P_new, I_c).T  # rows 0:c of P_new^-1
-        G = _blocks(F[:, :c])
+        Pinv_c = solve_spd(P_new, I_c).T  # rows 0:c of P_new^-1
+        G = landmark_blocks(F[:, :c])
         K = Q - Q @ Pinv_c[:, :c] @ Q
         self.E = self.E + G @ (0.5 * (K + K.T)) @ G.transpose(0, 2, 1)
         dgemm(-1.0, (Q @ Pinv_c).T, F[:, :c].T, beta=1.0, c=F.T, overwrite_c=1)  # F -= F_c Q P'^-1_c.
@@ -183,7 +183,7 @@ class RetiredLandmarks:
         x, R_a, p_a = self.mean[ids], self.anchor_R[ids], self.anchor_p[ids]
         J = idp.world_jacobian(self.first[ids] if linearisation == "fej" else x, R_a)
         rows = (3 * ids[:, None] + np.arange(3)).ravel()
-        self.F[rows] = (J @ _blocks(self.F[rows])).reshape(3 * ids.size, -1)
+        self.F[rows] = (J @ landmark_blocks(self.F[rows])).reshape(3 * ids.size, -1)
         self.E[ids] = J @ self.E[ids] @ J.transpose(0, 2, 1)
         self.mean[ids] = idp.world_point(x, R_a, p_a)
         self.first[ids] = idp.world_point(self.first[ids], R_a, p_a)
