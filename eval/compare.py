@@ -1,6 +1,8 @@
 """Compare result folders of ``vislam bench`` (``results.json``) and ``vislam nees``
-(``nees.json``) side by side: the library behind ``vislam compare`` (no printing or writing here; the text is :mod:`eval.compare_text`, the figure
-:mod:`eval.compare_plots`). The folders are read by :func:`eval.results.load_results`.
+(``nees.json``) side by side: the library behind ``vislam compare`` (no printing or writing
+here: the text is :mod:`eval.compare_text`, the figure :mod:`eval.compare_plots`; the numbers
+and readings :mod:`eval.compare_readings`, the settings :mod:`eval.compare_settings`). The
+folders are read by :func:`eval.results.load_results`.
 
 The first folder is the baseline (A); every other folder (B, C, ...) is compared with it. A
 folder may hold either kind or both; each kind is compared among the folders that hold it,
@@ -44,6 +46,18 @@ from pathlib import Path
 import numpy as np
 
 from vislam.ekf.errors import InputError
+from vislam.eval.compare_readings import (
+    ABSENT,
+    NO_VALUE,
+    Change,
+    change,
+    clip,
+    num,
+    relative,
+    run_summary,
+    spread_test,
+)
+from vislam.eval.compare_settings import settings_diff, union
 from vislam.eval.results import (
     NEES_FILE,
     RESULTS_FILE,
@@ -54,17 +68,6 @@ from vislam.eval.results import (
     Results,
     load_results,
 )
-from vislam.eval.compare_readings import (
-    NO_VALUE,
-    Change,
-    change,
-    clip,
-    num,
-    relative,
-    run_summary,
-    spread_test,
-)
-from vislam.eval.compare_settings import ABSENT, settings_diff, union
 
 FAILED = "failed"
 

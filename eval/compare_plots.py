@@ -31,8 +31,7 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 from vislam.eval.atomic import write_bytes
 from vislam.eval.compare import PLOT_FIGURES, Comparison, Row, Section
-from vislam.eval.compare_readings import NO_VALUE, num
-from vislam.eval.compare_settings import ABSENT
+from vislam.eval.compare_readings import ABSENT, NO_VALUE, num
 from vislam.eval.plots import COLOURS, DPI
 
 FOLDER_COLOURS = ("black", "tab:blue", "tab:orange", "tab:purple", "tab:cyan", "tab:olive",

@@ -16,6 +16,8 @@ SPREAD_ALPHA = 0.05
 SAME_RTOL = 1e-3
 #: A cell where the folder holds the estimator but has no value.
 NO_VALUE = "n/a"
+#: A cell where the folder does not hold the estimator (or the setting).
+ABSENT = "–"
 
 
 def num(x: float | None) -> str:
@@ -132,9 +134,8 @@ def run_summary(values: list[float | None]) -> str:
             f"({num(float(v.min()))}, {num(float(v.max()))})")
 
 
-
-
 def clip(text: str, n: int = 60) -> str:
+    """``text`` on one line, at most ``n`` characters."""
     text = " ".join(str(text).split())
     return text if len(text) <= n else text[: n - 3] + "..."
 

@@ -7,14 +7,12 @@ from __future__ import annotations
 import json
 import math
 
-from vislam.eval.compare_readings import clip, num
+from vislam.eval.compare_readings import ABSENT, clip, num
 
 #: Relative tolerance under which two numeric settings count as equal.
 SETTINGS_RTOL = 1e-3
 #: Path components of settings never compared (bookkeeping, not settings).
 SETTINGS_IGNORED = frozenset({"created", "command", "cache_entry", "cached", "identification"})
-#: A setting a folder does not have.
-ABSENT = "–"
 
 
 def _flatten(obj, prefix: str = "") -> dict[str, object]:
@@ -59,7 +57,6 @@ def _show_setting(x) -> str:
 _MISSING = object()
 
 
-
 def settings_diff(settings: list[dict]) -> list[tuple[str, list[str]]]:
     """The settings whose value differs from the baseline's in some folder:
     [(dotted key, shown value per folder)]."""
@@ -76,8 +73,8 @@ def settings_diff(settings: list[dict]) -> list[tuple[str, list[str]]]:
     return out
 
 
-
 def union(lists) -> list[str]:
+    """The names of every list, each once, in the order first seen."""
     out: list[str] = []
     for names in lists:
         for n in names:

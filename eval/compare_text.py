@@ -6,8 +6,7 @@ from __future__ import annotations
 import re
 
 from vislam.eval.compare import Comparison, Section
-from vislam.eval.compare_readings import NO_VALUE
-from vislam.eval.compare_settings import ABSENT
+from vislam.eval.compare_readings import ABSENT, NO_VALUE
 
 #: The files ``vislam compare`` writes into its output folder.
 COMPARE_FILES = ("compare.md", "compare.tex", "compare.png")
@@ -20,6 +19,8 @@ BENCH_NOTE = ("Changes are B − A against the baseline A (relative to |A|). Low
 
 
 def header(section: Section) -> list[str]:
+    """The column titles of a section's table: the baseline, then per folder its value, change
+    and reading."""
     cols = ["estimator", "figure", f"{section.folders[0].label} (baseline)"]
     for f in section.folders[1:]:
         b = section.folders[0].label
@@ -28,6 +29,7 @@ def header(section: Section) -> list[str]:
 
 
 def body(section: Section) -> list[list[str]]:
+    """The cells of a section's table, one row per figure of each estimator."""
     out = []
     for row in section.rows:
         cells = [row.estimator, row.label, row.cells[0]]
@@ -39,6 +41,7 @@ def body(section: Section) -> list[list[str]]:
 
 
 def md_table(header: list[str], body: list[list[str]]) -> list[str]:
+    """The lines of a Markdown table (``|`` and line breaks in cells escaped)."""
     def esc(s: str) -> str:
         return str(s).replace("|", "\\|").replace("\r", "\\r").replace("\n", "\\n")
 

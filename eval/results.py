@@ -313,6 +313,8 @@ def load_results(folder: str | os.PathLike) -> Results:
                          f"{NEES_FILE} (vislam nees)")
     bench = nees_results = None
     if results.is_file():
+        data = read_json(results)
+        bench_results(data, results)  # results.json's faults first, then settings.json's
         settings = None
         settings_file = p / SETTINGS_FILE
         if settings_file.is_file():
@@ -320,7 +322,7 @@ def load_results(folder: str | os.PathLike) -> Results:
             if not isinstance(settings, dict):
                 raise InputError(f"{settings_file}: expected a JSON object, got "
                                  f"{type(settings).__name__}")
-        bench = bench_results(read_json(results), results, settings)
+        bench = bench_results(data, results, settings)
     if nees.is_file():
         nees_results = nees_results_of(read_json(nees), nees)
     return Results(p, bench, nees_results)

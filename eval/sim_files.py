@@ -24,7 +24,8 @@ def camera_groundtruth(poses: np.ndarray, cam_T_imu: np.ndarray) -> np.ndarray:
 def write_simulation(
     result, out_dir: str | os.PathLike, name: str | None = None
 ) -> dict[str, Path]:
-    """Write a drive as the shared data lays it out; returns the paths by role.
+    """Write a drive (an :class:`eval.simulate.SimResult`) as the shared data lays it out;
+    returns the paths by role.
 
     * ``data``: ``out_dir/NAME.npz``, the real data's keys and shapes (features (4, M, T) with
       -1 where unobserved, time_stamps (1, T), linear/rotational_velocity (3, T), K, b,
