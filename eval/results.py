@@ -54,6 +54,12 @@ VS_SMOOTHER_KEYS = ("ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean",
 # --- the objects -----------------------------------------------------------------------------
 
 
+def _setting(settings: dict | None, key: str, kind: type):
+    """``settings[key]`` where it is a ``kind``, else None."""
+    value = (settings or {}).get(key)
+    return value if isinstance(value, kind) else None
+
+
 @dataclass(frozen=True)
 class VersusSmoother:
     """An estimator against the drive's reference smoother (None: no value, or no smoother)."""
@@ -203,13 +209,12 @@ class BenchResults:
     @property
     def filter(self) -> dict | None:
         """The filter settings of the run (settings.json's ``filter``)."""
-        f = (self.settings or {}).get("filter")
-        return f if isinstance(f, dict) else None
+        return _setting(self.settings, "filter", dict)
 
     @property
     def command(self) -> str | None:
-        c = (self.settings or {}).get("command")
-        return c if isinstance(c, str) else None
+        """The command line that made the folder."""
+        return _setting(self.settings, "command", str)
 
 
 @dataclass(frozen=True)
@@ -263,8 +268,8 @@ class NeesResults:
 
     @property
     def command(self) -> str | None:
-        c = (self.settings or {}).get("command")
-        return c if isinstance(c, str) else None
+        """The command line that made the folder."""
+        return _setting(self.settings, "command", str)
 
 
 @dataclass(frozen=True)
