@@ -84,7 +84,7 @@ class GroundTruth:
 def read_kitti_poses(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     """Camera poses ``P`` (n, 4, 4) and the time column (n,) or None, from a 12- or
     13-column KITTI pose file. Faults raise :class:`InputError` naming file and line."""
-    from vislam.eval.loader import read_text
+    from vislam.eval.safe_reading import read_text
 
     path = Path(path)
     what = "ground-truth file"

@@ -1,4 +1,4 @@
-"""`vislam compare`: result folders of bench and nees side by side (eval/compare.py)."""
+"""`vislam compare`: result folders of bench and nees side by side (eval/compare.py, eval/results.py)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
-from vislam.eval import compare
+from vislam.eval import compare, compare_readings
 from vislam.eval.cli import main
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -200,21 +200,21 @@ def test_nees_spread_beyond_for_a_clear_change_and_not_for_identical_folders(tmp
 
 
 def test_spread_test_edge_cases():
-    assert compare.spread_test([1.0], [2.0, 3.0]) == (None, None)
-    assert compare.spread_test([2.0, 2.0], [2.0, 2.0]) == (1.0, False)
-    assert compare.spread_test([2.0, 2.0], [3.0, 3.0]) == (0.0, True)
-    p, beyond = compare.spread_test([5.0, 6.0, 7.0], [5.5, 6.5, 6.0, None])
+    assert compare_readings.spread_test([1.0], [2.0, 3.0]) == (None, None)
+    assert compare_readings.spread_test([2.0, 2.0], [2.0, 2.0]) == (1.0, False)
+    assert compare_readings.spread_test([2.0, 2.0], [3.0, 3.0]) == (0.0, True)
+    p, beyond = compare_readings.spread_test([5.0, 6.0, 7.0], [5.5, 6.5, 6.0, None])
     assert beyond is False and p > 0.5
 
 
 def test_nees_reading_closer_to_the_band_is_better():
     band = (3.8, 8.6)
-    assert compare.reading("band", 40.0, 20.0, band, band) == "better (closer to the band)"
-    assert compare.reading("band", 5.0, 7.0, band, band) == "both inside the band"
-    assert compare.reading("band", 1.0, 40.0, band, band) == "worse (further from the band)"
-    assert compare.reading("band", 2.0, 30.0, band, band) == "worse (further from the band)"
-    assert compare.reading("lower", 1.0, 1.0005) == "same"
-    assert compare.num(6183.71) == "6184" and compare.num(0.000123) == "1.230e-4"
+    assert compare_readings.reading("band", 40.0, 20.0, band, band) == "better (closer to the band)"
+    assert compare_readings.reading("band", 5.0, 7.0, band, band) == "both inside the band"
+    assert compare_readings.reading("band", 1.0, 40.0, band, band) == "worse (further from the band)"
+    assert compare_readings.reading("band", 2.0, 30.0, band, band) == "worse (further from the band)"
+    assert compare_readings.reading("lower", 1.0, 1.0005) == "same"
+    assert compare_readings.num(6183.71) == "6184" and compare_readings.num(0.000123) == "1.230e-4"
 
 
 # --- mixed kinds -----------------------------------------------------------------------------
@@ -365,8 +365,8 @@ def test_real_bench_before_and_after_a_settings_change(tmp_path, capsys):
     rb = {r["name"]: r for r in sb["estimators"]}["ekf-joint"]
     x, y = ra["ate_m"], rb["ate_m"]
     row = _row(printed, "ekf-joint", "ATE (m)")
-    assert row[2:4] == [compare.num(x), compare.num(y)]
-    assert row[4] == f"{compare.signed(y - x)} ({compare.relative(y - x, x)})"
+    assert row[2:4] == [compare_readings.num(x), compare_readings.num(y)]
+    assert row[4] == f"{compare_readings.signed(y - x)} ({compare_readings.relative(y - x, x)})"
     assert row[5] == ("same" if abs(y - x) <= 1e-3 * max(abs(x), abs(y))
                       else "better" if y < x else "worse")
     for name in ("dead-reckoning", "ekf-joint"):

@@ -81,7 +81,8 @@ def test_notebook_executes_on_a_folder_without_ground_truth(monkeypatch, tmp_pat
     the saved estimates, says that accuracy needs ground truth, and draws the rest."""
     from vislam.ekf.config import FilterConfig
     from vislam.eval.benchmark import collect_sequences, run_benchmark
-    from vislam.eval.simulate import SimConfig, simulate, write_simulation
+    from vislam.eval.sim_files import write_simulation
+    from vislam.eval.simulate import SimConfig, simulate
 
     paths = write_simulation(simulate(SimConfig(seed=2, n_frames=TEST_FRAMES)), tmp_path / "data", "nogt")
     for f in (tmp_path / "data" / "groundtruth").glob("*"):

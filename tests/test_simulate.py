@@ -12,16 +12,10 @@ from vislam.ekf.camera import project
 from vislam.ekf.errors import InputError
 from vislam.ekf.geometry import homogeneous, is_rigid, se3_exp, se3_inv
 from vislam.eval.cli import main as cli_main
-from vislam.eval.simulate import (
-    DEFAULT_SIM,
-    KITTI_CAM_T_IMU,
-    SimConfig,
-    default_sequence,
-    integrate_mean_pairing,
-    simulate,
-    simulation_stats,
-    write_simulation,
-)
+from vislam.eval.sim_config import DEFAULT_SIM, KITTI_CAM_T_IMU, SimConfig
+from vislam.eval.sim_drawing import integrate_mean_pairing
+from vislam.eval.sim_files import write_simulation
+from vislam.eval.simulate import default_sequence, simulate, simulation_stats
 from tests.sequence_asserts import assert_same_sequence
 
 SMALL = SimConfig(seed=7, n_frames=200)

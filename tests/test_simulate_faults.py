@@ -17,7 +17,9 @@ from vislam.ekf.model import Model
 from vislam.ekf.prediction import paired_velocities
 from vislam.eval.groundtruth import find_ground_truth
 from vislam.eval.loader import load_sequence
-from vislam.eval.simulate import KITTI_CAM_T_IMU, SimConfig, simulate, write_simulation
+from vislam.eval.sim_config import KITTI_CAM_T_IMU, SimConfig
+from vislam.eval.sim_files import write_simulation
+from vislam.eval.simulate import simulate
 
 BASE = SimConfig(seed=21, n_frames=120)
 

@@ -8,8 +8,14 @@ cheap and never imports GTSAM):
 - data: :func:`load_sequence`, :func:`simulate`, :class:`SimConfig`, :class:`Sequence`,
   :func:`find_ground_truth`;
 - estimation: :func:`run_estimator`, :class:`FilterConfig`, :class:`Estimate`;
-- scoring: :func:`trajectory_metrics`, :func:`pose_nees`, :func:`monte_carlo_nees`,
-  :func:`chi2_bounds`;
+- scoring: :func:`trajectory_metrics`, :func:`pose_nees`, :func:`landmark_nees`,
+  :func:`match_landmarks`, :func:`position_deviation`, :func:`reference_honesty`,
+  :func:`monte_carlo_nees`, :func:`chi2_bounds`;
+- results folders: :func:`load_results` (``vislam bench`` and ``vislam nees`` folders as
+  :class:`Results`: :class:`BenchResults` with :class:`DriveResult` and
+  :class:`EstimatorResult` per drive and estimator, :class:`NeesResults` with
+  :class:`NeesEstimatorResult`), :class:`DriveData`, :func:`read_tum` (a TUM trajectory), and
+  :data:`COLOURS` (each estimator's colour in vislam's figures);
 - pytest helpers: :mod:`vislam.testing`.
 """
 
@@ -34,7 +40,21 @@ _EXPORTS = {
     "trajectory_metrics": "vislam.eval.metrics",
     "pose_nees": "vislam.eval.consistency",
     "chi2_bounds": "vislam.eval.consistency",
+    "landmark_nees": "vislam.eval.consistency",
+    "match_landmarks": "vislam.eval.consistency",
+    "position_deviation": "vislam.eval.consistency",
+    "reference_honesty": "vislam.eval.consistency",
     "monte_carlo_nees": "vislam.eval.benchmark",
+    "load_results": "vislam.eval.results",
+    "Results": "vislam.eval.results",
+    "BenchResults": "vislam.eval.results",
+    "DriveResult": "vislam.eval.results",
+    "EstimatorResult": "vislam.eval.results",
+    "NeesResults": "vislam.eval.results",
+    "NeesEstimatorResult": "vislam.eval.results",
+    "DriveData": "vislam.eval.results",
+    "read_tum": "vislam.eval.export",
+    "COLOURS": "vislam.eval.plots",
 }
 
 __all__ = sorted(_EXPORTS) + ["testing"]

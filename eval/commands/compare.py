@@ -7,7 +7,7 @@ Per sequence and estimator each figure of every folder, with its change against 
 per-run NEES and whether the change is beyond the run-to-run spread (Welch's t-test at 5 %);
 the settings that differ are listed first. Prints the Markdown table (``--format latex``: the
 LaTeX) and writes ``compare.md``, ``compare.tex`` and ``compare.png`` into ``--out`` (default
-``results/compare-<YYYYmmdd-HHMMSS>``). See :mod:`eval.compare` for the readings.
+``results/compare-<YYYYmmdd-HHMMSS>``). See :mod:`eval.compare` for the readings, :mod:`eval.results` for what is read.
 """
 
 from __future__ import annotations
@@ -37,15 +37,8 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     from vislam.eval.atomic import write_text
-    from vislam.eval.compare import (
-        COMPARE_FILES,
-        build_comparison,
-        check_out_dir,
-        input_files,
-        load_folders,
-        to_latex,
-        to_markdown,
-    )
+    from vislam.eval.compare import build_comparison, check_out_dir, input_files, load_folders
+    from vislam.eval.compare_text import COMPARE_FILES, to_latex, to_markdown
     from vislam.eval.output_dir import OutputDir
     from vislam.eval.signals import deferred
 

@@ -17,15 +17,9 @@ import time
 from pathlib import Path
 
 from vislam.ekf.errors import InputError
-from vislam.eval.simulate import (
-    DEFAULT_SIM,
-    FILE_EXTRINSIC_FAULTS,
-    SIM_VELOCITY_PAIRINGS,
-    SimConfig,
-    simulate,
-    simulation_stats,
-    write_simulation,
-)
+from vislam.eval.sim_config import DEFAULT_SIM, FILE_EXTRINSIC_FAULTS, SIM_VELOCITY_PAIRINGS, SimConfig
+from vislam.eval.sim_files import write_simulation
+from vislam.eval.simulate import simulate, simulation_stats
 
 
 def _numbers(text: str) -> list[float]:
@@ -207,7 +201,7 @@ def check_name(name: str) -> None:
 
 
 def outputs(name: str) -> tuple[str, ...]:
-    """The files ``vislam simulate`` writes, relative to ``--out`` (eval.simulate.write_simulation)."""
+    """The files ``vislam simulate`` writes, relative to ``--out`` (eval.sim_files.write_simulation)."""
     return (f"{name}.npz", f"groundtruth/{name}.txt", f"{name}_landmarks.npz",
             f"{name}_model.toml")
 

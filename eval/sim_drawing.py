@@ -1,0 +1,258 @@
+"""The random draws of a simulated drive (:mod:`eval.simulate` puts them together): the
+trajectory (smooth random speed, yaw rate and pitch), the landmarks beside the path, the tracker
+with its pixel noise, and the velocity samples. Each function draws from the stream it is
+given, in a fixed order: moving code between these functions must never change a draw (every
+simulated drive is the same, to the byte, for one seed)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+
+from vislam.ekf.camera import distort_pixels, project
+from vislam.ekf.geometry import homogeneous, se3_exp, se3_inv
+from vislam.ekf.sequence import Calibration
+from vislam.eval.sim_config import KITTI_IMAGE_SIZE, SimConfig
+
+#: Extra path (m) simulated beyond the last frame so landmarks ahead of it exist.
+LOOKAHEAD_M = 80.0
+#: Landmarks further than this along the path from the car are never looked at (m).
+WINDOW_M = 150.0
+#: Noise-free projections closer than this to the image border are not tracked (px), so that
+#: noisy pixels stay inside the image (and never equal the -1 of "unobserved").
+BORDER_PX = 5.0
+
+
+# --------------------------------------------------------------------------- the drive
+
+
+def smooth_profile(rng, t_end: float, spacing: float, draw) -> PchipInterpolator:
+    """A PCHIP curve through knots every ``spacing`` seconds with values ``draw(n)``."""
+    n = int(np.ceil(t_end / spacing)) + 2
+    knots_t = np.arange(n) * spacing
+    return PchipInterpolator(knots_t, draw(n))
+
+
+def instantaneous_twists(config: SimConfig, rng, t: np.ndarray) -> np.ndarray:
+    """Body twists (n, 6) at times ``t``: forward speed, Euler-kinematics angular velocity."""
+    span = float(t[-1]) + 1.0
+    speed = smooth_profile(
+        rng, span, config.knot_spacing_s, lambda n: rng.uniform(config.speed_min, config.speed_max, n)
+    )
+
+    def yaw_knots(n):
+        rates = rng.uniform(-config.max_yaw_rate, config.max_yaw_rate, n)
+        return np.where(rng.random(n) < config.straight_fraction, 0.0, rates)
+
+    yaw_rate = smooth_profile(rng, span, config.knot_spacing_s, yaw_knots)
+    max_pitch = np.deg2rad(config.max_pitch_deg)
+
+    def pitch_knots(n):
+        values = rng.uniform(-max_pitch, max_pitch, n)
+        values[0] = 0.0  # level at frame 0, so the world z axis is up
+        return values
+
+    pitch = smooth_profile(rng, span, 2.0 * config.knot_spacing_s, pitch_knots)
+    theta, dtheta, dpsi = pitch(t), pitch.derivative()(t), yaw_rate(t)
+    u = np.zeros((t.size, 6))
+    u[:, 0] = speed(t)
+    u[:, 3] = -dpsi * np.sin(theta)
+    u[:, 4] = dtheta
+    u[:, 5] = dpsi * np.cos(theta)
+    return u
+
+
+def integrate_mean_pairing(twists: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """Poses (T, 4, 4) from identity with the constant twist ``(u_k + u_{k+1}) / 2`` on each
+    interval ``[k, k+1]`` of length ``dt[k]``: the simulator's definition of the true motion."""
+    twists = np.asarray(twists, dtype=float)
+    steps = se3_exp(np.asarray(dt, dtype=float)[:, None] * 0.5 * (twists[:-1] + twists[1:]))
+    poses = np.empty((twists.shape[0], 4, 4))
+    poses[0] = np.eye(4)
+    for k, step in enumerate(steps):
+        poses[k + 1] = poses[k] @ step
+    return poses
+
+
+# --------------------------------------------------------------------------- landmarks
+
+
+def place_landmarks(
+    config: SimConfig, rng, poses: np.ndarray, road_z: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Landmarks (N, 3) along both sides of the path of ``poses``, sorted by the arc length
+    (N,) of the path point they stand beside (returned too). ``road_z``: height of the road
+    relative to the IMU."""
+    pos = poses[:, :3, 3]
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
+    n = int(round(config.landmark_density * arc[-1]))
+    s = np.sort(rng.uniform(0.0, arc[-1], n))
+    # Fractional frame index of each arc length; positions and headings interpolated there.
+    f = np.interp(s, arc, np.arange(arc.size))
+    i0 = np.minimum(np.floor(f).astype(int), arc.size - 2)
+    a = (f - i0)[:, None]
+    base = (1 - a) * pos[i0] + a * pos[i0 + 1]
+    forward = (1 - a) * poses[i0, :3, 0] + a * poses[i0 + 1, :3, 0]
+    left = np.stack([-forward[:, 1], forward[:, 0], np.zeros(n)], axis=1)
+    left /= np.linalg.norm(left, axis=1, keepdims=True)
+    kind = rng.random(n)
+    far = kind < config.far_fraction
+    ground = ~far & (kind < config.far_fraction + config.ground_fraction)
+    side = np.where(rng.random(n) < 0.5, -1.0, 1.0)
+    lateral = np.select(
+        [far, ground],
+        [rng.uniform(20.0, 50.0, n), rng.uniform(1.0, 10.0, n)],
+        rng.uniform(4.0, 20.0, n),
+    ) * side
+    above_road = np.select(
+        [far, ground],
+        [rng.uniform(0.0, 20.0, n), rng.uniform(0.0, 0.15, n)],
+        rng.uniform(0.0, 10.0, n),
+    )
+    height = road_z + above_road
+    return base + lateral[:, None] * left + height[:, None] * np.array([0.0, 0.0, 1.0]), s
+
+
+# --------------------------------------------------------------------------- observations
+
+
+def drifting_noise(white: np.ndarray, previous: np.ndarray, continuing: np.ndarray,
+                   a: float) -> np.ndarray:
+    """One frame's pixel errors (k, 4) from its white draws ``white`` (k, 4, already times
+    pixel_sigma): ``a previous + sqrt(1 - a^2) white`` where a track ``continuing`` from the
+    frame before (its error there ``previous``), ``white`` where a track starts (the AR(1)
+    drift of the module docstring; ``a`` 0: ``white`` itself)."""
+    if not a:
+        return white
+    out = white.copy()
+    out[continuing] = a * previous[continuing] + np.sqrt(1.0 - a * a) * white[continuing]
+    return out
+
+
+def observe_landmarks(
+    config: SimConfig, rng_tracks, rng_pixels, poses, points, point_arc, calib: Calibration,
+    repeat_frames: np.ndarray | None = None,
+):
+    """Run the tracker over the first ``len(poses)`` frames; at ``repeat_frames`` (bool per
+    frame) every continuing track repeats its previous observation exactly.
+
+    Returns rows (frame, track, z) of the observations, the noise-free pixels of those rows,
+    and the landmark of each track index.
+    """
+    M = calib.M
+    width, height = KITTI_IMAGE_SIZE
+    n_pts = points.shape[0]
+    sigma = 0.0 if config.noise_free else config.pixel_sigma
+    p_len = 1.0 / config.mean_track_length
+    active = np.zeros(n_pts, dtype=bool)
+    track_of = np.full(n_pts, -1, dtype=np.int64)
+    last_z = np.zeros((n_pts, 4))
+    last_error = np.zeros((n_pts, 4))  # each point's pixel error at its previous observation
+    remaining = np.zeros(n_pts, dtype=np.int64)
+    track_landmark: list[np.ndarray] = []
+    next_id = 0
+    rows_f, rows_t, rows_z, rows_z0 = [], [], [], []
+    cam_T_world = calib.cam_T_imu @ se3_inv(poses)
+    # Only landmarks placed within WINDOW_M of path length of the car are looked at (points
+    # are sorted by arc length): this keeps the cost linear in the drive's length. A landmark
+    # outside that window would have to be seen across a loop of the road; it counts as occluded.
+    pos = poses[:, :3, 3]
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
+    lo_all = np.searchsorted(point_arc, arc - WINDOW_M, side="left")
+    hi_all = np.searchsorted(point_arc, arc + WINDOW_M, side="right")
+    for k in range(poses.shape[0]):
+        lo, hi = int(lo_all[k]), int(hi_all[k])
+        q = points[lo:hi] @ cam_T_world[k, :3, :3].T + cam_T_world[k, :3, 3]
+        depth = q[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z0 = project(M, homogeneous(q))  # paper eq. 1-3
+            if config.radial_k1:
+                z0 = distort_pixels(z0, calib.K, config.radial_k1)
+        visible = (
+            (depth >= config.min_depth)
+            & (depth <= config.max_depth)
+            & (z0[:, 0] <= width - 1 - BORDER_PX)
+            & (z0[:, 2] >= BORDER_PX)
+            & (z0[:, 1] >= BORDER_PX)
+            & (z0[:, 1] <= height - 1 - BORDER_PX)
+        )
+        was_active = active[lo:hi]
+        keep = was_active & visible & (remaining[lo:hi] > 0)
+        p_detect = 1.0 if k == 0 else config.detect_probability
+        # A track that ends now cannot restart now (ended tracks were active).
+        start = ~was_active & visible & (rng_tracks.random(hi - lo) < p_detect)
+        local = np.flatnonzero(keep | start)
+        error = drifting_noise(sigma * rng_pixels.standard_normal((local.size, 4)),
+                               last_error[lo + local], keep[local], config.pixel_correlation)
+        z = z0[local] + error
+        ok = z[:, 0] - z[:, 2] >= config.min_disparity
+        local, z = local[ok], z[ok]
+        seen = lo + local
+        error = error[ok]
+        if repeat_frames is not None and repeat_frames[k]:
+            again = keep[local]
+            z[again] = last_z[seen[again]]
+            error[again] = last_error[seen[again]]
+        last_z[seen] = z
+        last_error[seen] = error
+        new = seen[start[local]]
+        track_of[new] = next_id + np.arange(new.size)
+        remaining[new] = rng_tracks.geometric(p_len, new.size)
+        track_landmark.append(new)
+        next_id += new.size
+        # Every track not observed now has ended for good (also any left outside the window).
+        active[:] = False
+        active[seen] = True
+        remaining[seen] -= 1
+        rows_f.append(np.full(seen.size, k, dtype=np.int64))
+        rows_t.append(track_of[seen])
+        rows_z.append(z)
+        rows_z0.append(z0[local])
+    return (
+        np.concatenate(rows_f),
+        np.concatenate(rows_t),
+        np.concatenate(rows_z),
+        np.concatenate(rows_z0),
+        np.concatenate(track_landmark),
+    )
+
+
+# --------------------------------------------------------------------------- velocities
+
+
+def noise_sigma(value):
+    """A sigma setting as the simulator multiplies it: the float itself (bit for bit what it
+    always was) or three numbers (3,)."""
+    return value if isinstance(value, float) else np.asarray(value, dtype=float)
+
+
+def velocity_samples(u_all: np.ndarray, T: int, pairing: str) -> np.ndarray:
+    """The noise-free velocity samples (T, 6) of instantaneous twists ``u_all`` (n > T, 6)
+    under ``pairing`` (module docstring)."""
+    if pairing == "mean":
+        return u_all[:T]
+    w = 0.5 * (u_all[:-1] + u_all[1:])  # the true twist of each interval
+    if pairing == "current":
+        return w[:T].copy()
+    out = np.empty((T, 6))
+    out[0] = u_all[0]
+    out[1:] = w[: T - 1]
+    return out
+
+
+def velocity_noise(config: SimConfig, rng_velocity, T: int) -> np.ndarray:
+    """The errors (T, 6) added to the velocity samples: white (or, with
+    ``velocity_correlation``, AR(1) along the drive) linear-velocity noise, then white gyro
+    noise plus the constant gyro bias; zeros for a noise-free drive."""
+    noise = np.zeros((T, 6))
+    if not config.noise_free:
+        white = rng_velocity.standard_normal((T, 3))
+        if config.velocity_correlation:  # the drive as one track of AR(1) errors
+            from vislam.graph.track_correlation import ar1_along_tracks
+
+            white = ar1_along_tracks(np.arange(T), np.zeros(T, dtype=np.int64),
+                                     config.velocity_correlation, white)
+        noise[:, :3] = noise_sigma(config.velocity_sigma) * white
+        noise[:, 3:] = noise_sigma(config.gyro_sigma) * rng_velocity.standard_normal((T, 3))
+        noise[:, 3:] += np.asarray(config.gyro_bias)
+    return noise
