@@ -6,13 +6,15 @@ default simulation, then compares every ``.estimate.npz`` array with a saved run
     python benchmarks/estimate_identity.py --against DIR [FILE.npz ...]    # after it
 
 Prints one line per estimate: identical, or the largest absolute and relative difference of
-each array that differs. Exit 1 when any estimate differs by more than ``--rtol`` (default 0:
+each array that differs. Wall-clock times (``step_time_s``, the timing keys of ``info_json``)
+are not compared; ``info_json`` is compared as data, not as text. Exit 1 when any estimate differs by more than ``--rtol`` (default 0:
 bit-identical) or is missing.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -22,6 +24,20 @@ from pathlib import Path
 import numpy as np
 
 ESTIMATORS = "all"
+#: Arrays that hold wall-clock time: never compared.
+TIMING_ARRAYS = ("step_time_s",)
+#: Keys of ``info_json`` that hold wall-clock time (seconds), dropped before comparing; its
+#: order of keys is not compared either (the JSON is compared as data).
+TIMING_KEYS = ("timing", "total_s", "seconds")
+
+
+def _without_timing(x):
+    if isinstance(x, dict):
+        return {k: _without_timing(v) for k, v in x.items()
+                if k not in TIMING_KEYS and not (k.endswith("_s") and isinstance(v, float))}
+    if isinstance(x, list):
+        return [_without_timing(v) for v in x]
+    return x
 
 
 def run_bench(drives: list[str], out: Path, frames: int) -> None:
@@ -52,7 +68,14 @@ def compare(a: Path, b: Path, rtol: float) -> bool:
             if key not in za.files or key not in zb.files:
                 diffs.append(f"{key} only in one")
                 continue
+            if key in TIMING_ARRAYS:
+                continue
             x, y = za[key], zb[key]
+            if key == "info_json":
+                if _without_timing(json.loads(str(x))) != _without_timing(json.loads(str(y))):
+                    diffs.append(f"{key} differs beyond its timing keys")
+                    ok = False
+                continue
             if x.shape != y.shape:
                 diffs.append(f"{key} shape {x.shape} vs {y.shape}")
                 continue
