@@ -38,6 +38,7 @@ from vislam.ekf.conventions import estimate_cov_to_gtsam
 from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.sequence import Sequence
+from vislam.ekf.estimators import SMOOTHER_INITIALISERS
 from vislam.graph.factors import (
     GraphProblem,
     NoiseModels,
@@ -67,8 +68,8 @@ from vislam.graph.twist_smoothness import smoothness_sigma
 
 log = logging.getLogger(__name__)
 
-#: The EKF variants tried, in order, for the default initialisation.
-EKF_INITIALISERS = ("ekf-invariant", "ekf-joint")
+#: The EKF variants tried, in order, for the default initialisation (named in ekf.estimators).
+EKF_INITIALISERS = SMOOTHER_INITIALISERS
 
 Progress = Callable[[int, int], None]
 

@@ -16,6 +16,8 @@ cheap and never imports GTSAM):
   :class:`EstimatorResult` per drive and estimator, :class:`NeesResults` with
   :class:`NeesEstimatorResult`), :class:`DriveData`, :func:`read_tum` (a TUM trajectory), and
   :data:`COLOURS` (each estimator's colour in vislam's figures);
+- a filter author's toolkit (the per-frame protocol, its driver, SE(3), the stereo camera):
+  :mod:`vislam.filters`;
 - pytest helpers: :mod:`vislam.testing`.
 """
 
@@ -57,12 +59,15 @@ _EXPORTS = {
     "COLOURS": "vislam.eval.plots",
 }
 
-__all__ = sorted(_EXPORTS) + ["testing"]
+#: public submodules, imported on first use
+_MODULES = ("filters", "testing")
+
+__all__ = sorted(_EXPORTS) + list(_MODULES)
 
 
 def __getattr__(name: str):
-    if name == "testing":
-        return importlib.import_module("vislam.testing")
+    if name in _MODULES:
+        return importlib.import_module(f"vislam.{name}")
     try:
         module = _EXPORTS[name]
     except KeyError:
