@@ -18,7 +18,11 @@ EXIT_FAILURES = 3
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from vislam.eval.commands.options import add_align_argument, add_filter_arguments
+    from vislam.eval.commands.options import (
+        add_align_argument,
+        add_filter_arguments,
+        add_model_argument,
+    )
     from vislam.eval.drives import DEFAULT_BENCH_FRAMES
     from vislam.eval.executors import add_executor_arguments
     from vislam.eval.registry import DEFAULT_BENCH, ESTIMATOR_NAMES
@@ -44,17 +48,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_executor_arguments(parser)
     add_align_argument(parser)
     add_filter_arguments(parser)
-
-
-def add_model_argument(parser: argparse.ArgumentParser) -> None:
-    """``--model identify|as-given`` (bench, score): which model the drives are run under."""
-    parser.add_argument("--model", choices=("identify", "as-given"), default="identify",
-                        help="identify: every estimator runs under the model identified from "
-                             "each drive's own data (noise, gyro bias, pairing, extrinsic; "
-                             "cached by content, see 'vislam calibrate'), and ground truth is "
-                             "converted with its extrinsic, the default; as-given: the file's "
-                             "extrinsic and the settings as given (the paper's). A [model] "
-                             "table in --config is used as it is")
 
 
 def drives_under_model(args: argparse.Namespace, sequences: list, config, smoother, model) -> list:

@@ -220,3 +220,14 @@ def add_align_argument(parser: argparse.ArgumentParser) -> None:
              "gravity (world z) and translation, the 4-dof alignment of a gravity-aligned "
              "visual-inertial estimate, none the raw ATE",
     )
+
+
+def add_model_argument(parser: argparse.ArgumentParser) -> None:
+    """``--model identify|as-given`` (bench, score): which model the drives are run under."""
+    parser.add_argument("--model", choices=("identify", "as-given"), default="identify",
+                        help="identify: every estimator runs under the model identified from "
+                             "each drive's own data (noise, gyro bias, pairing, extrinsic; "
+                             "cached by content, see 'vislam calibrate'), and ground truth is "
+                             "converted with its extrinsic, the default; as-given: the file's "
+                             "extrinsic and the settings as given (the paper's). A [model] "
+                             "table in --config is used as it is")

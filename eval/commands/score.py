@@ -28,8 +28,11 @@ import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from vislam.eval.commands.bench import add_model_argument
-    from vislam.eval.commands.options import add_align_argument, add_filter_arguments
+    from vislam.eval.commands.options import (
+        add_align_argument,
+        add_filter_arguments,
+        add_model_argument,
+    )
     from vislam.eval.score import DEFAULT_T_MAX_DIFF, FORMATS
 
     parser.add_argument("trajectory", metavar="TRAJ", help="trajectory file (tum, kitti, euroc)")
