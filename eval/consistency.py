@@ -4,7 +4,8 @@ cross-validation of an EKF against the smoother where ground truth is missing.
 Definitions (DESIGN.md, "Scoring"):
 
 - Pose NEES at step k: ``xi^T P^-1 xi`` with ``world_T_imu_true = world_T_imu_est @ exp(xi)``
-  (the Estimate's right perturbation, 6 dof), computed by :func:`eval.metrics.nees_pose`.
+  (the Estimate's right perturbation, 6 dof): :func:`pose_nees`, the quadratic form
+  :func:`eval.metrics.nees`.
   Landmark NEES: ``e^T P^-1 e`` with ``e = m_true - m_est`` (3 dof).
 - Step 0 is left out of every pose-NEES average: the world frame is the IMU frame at step 0, so
   the error there is zero by construction and its NEES says nothing about consistency.
@@ -26,6 +27,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from vislam.ekf.estimate import Estimate
+from vislam.ekf.errors import InputError
+from vislam.eval.metrics import ate_rmse, check_align_mode, nees, pose_errors
 
 POSE_DOF = 6
 LANDMARK_DOF = 3
@@ -123,17 +126,13 @@ def anees(nees: np.ndarray, dof: int, probability: float = 0.95) -> AneesResult:
 def pose_nees(est: Estimate, gt_frames: np.ndarray, gt_poses: np.ndarray) -> np.ndarray:
     """Pose NEES (T,) of ``est`` against ground truth; NaN at step 0, at steps without ground
     truth, and where the covariance is missing."""
-    from vislam.eval.metrics import nees_pose
-
     out = np.full(est.n_frames, np.nan)
     frames = np.asarray(gt_frames, dtype=np.int64)
     keep = (frames >= 0) & (frames < est.n_frames)
     frames = frames[keep]
     if frames.size == 0:
         return out
-    values = np.asarray(
-        nees_pose(est.poses[frames], est.pose_cov[frames], np.asarray(gt_poses)[keep]), dtype=float
-    )
+    values = nees(pose_errors(est.poses[frames], np.asarray(gt_poses)[keep]), est.pose_cov[frames])
     out[frames] = values
     out[0] = np.nan
     return out
@@ -160,8 +159,6 @@ def landmark_truth_for(est: Estimate, truth: np.ndarray) -> np.ndarray:
 def landmark_nees(est: Estimate, truth: np.ndarray) -> np.ndarray:
     """Landmark NEES (M_est,) against true positions (source-track indexed); NaN where the
     estimate has no landmark or no covariance."""
-    from vislam.eval.metrics import nees_points
-
     gt = landmark_truth_for(est, truth)
     out = np.full(est.landmarks.shape[0], np.nan)
     ok = (
@@ -170,7 +167,7 @@ def landmark_nees(est: Estimate, truth: np.ndarray) -> np.ndarray:
         & np.all(np.isfinite(est.landmark_cov.reshape(-1, 9)), axis=1)
     )
     if np.any(ok):
-        out[ok] = np.asarray(nees_points(est.landmarks[ok], est.landmark_cov[ok], gt[ok]))
+        out[ok] = nees(gt[ok] - est.landmarks[ok], est.landmark_cov[ok])
     return out
 
 
@@ -233,8 +230,6 @@ def versus_smoother(est: Estimate, smoother: Estimate, probability: float = 0.95
     estimated), ``nees_pose_mean`` (est error w.r.t. the smoother normalised by est's covariance,
     steps 1..T-1) and ``inside_95_fraction`` (share of steps with NEES <= chi2.ppf(0.95, 6)).
     Anything that cannot be computed is None; an unknown ``align`` is an InputError."""
-    from vislam.eval.metrics import check_align_mode
-
     check_align_mode(align)
     out = {
         "ate_m": None,
@@ -265,9 +260,6 @@ def ate_or_none(est_poses: np.ndarray, ref_poses: np.ndarray, align: str | None)
     """ATE RMSE (m) of ``est_poses`` against ``ref_poses`` after the alignment ``align`` (one of
     :data:`eval.metrics.ALIGN_MODES`, or None for none); None where it cannot be computed
     (degenerate alignment, non-finite poses). An unknown ``align`` is an InputError, not None."""
-    from vislam.ekf.errors import InputError
-    from vislam.eval.metrics import ate_rmse, check_align_mode
-
     if align is not None:
         check_align_mode(align)
 

@@ -1,6 +1,6 @@
 """Where the jobs of ``vislam bench`` and ``vislam nees`` run (``--executor``, ``--scheduler``).
 
-:func:`eval.benchmark.run_jobs` decides what to run and in which order (the smoother after its
+:func:`eval.study.run_jobs` decides what to run and in which order (the smoother after its
 initialiser EKF); an executor only runs the jobs it is given:
 
 - ``local`` (the default): a process pool of ``--jobs`` workers on this machine

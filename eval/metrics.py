@@ -336,8 +336,18 @@ def pose_errors(est_poses, gt_poses) -> np.ndarray:
     return se3_log(se3_inv(est) @ gt)
 
 
-def _nees(e: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """``e^T cov^-1 e`` per row; NaN where the covariance is missing or singular."""
+def nees(errors, cov) -> np.ndarray:
+    """NEES ``e^T cov^-1 e`` (N,) of each row of ``errors`` (N, d) under its covariance ``cov``
+    (N, d, d); NaN where the covariance is missing or singular. The pose NEES of an estimate is
+    :func:`eval.consistency.pose_nees` (errors :func:`pose_errors`, 6 dof), its landmarks'
+    :func:`eval.consistency.landmark_nees` (``m_true - m_est``, 3 dof)."""
+    e = np.asarray(errors, dtype=np.float64)
+    cov = np.asarray(cov, dtype=np.float64)
+    if e.ndim != 2:
+        raise InputError(f"errors must be an (N, d) array, got shape {e.shape}")
+    if cov.shape != (e.shape[0], e.shape[1], e.shape[1]):
+        raise InputError(f"covariances must have shape ({e.shape[0]}, {e.shape[1]}, "
+                         f"{e.shape[1]}), got {cov.shape}")
     out = np.full(e.shape[0], np.nan)
     good = np.all(np.isfinite(cov.reshape(cov.shape[0], -1)), axis=1) & np.all(np.isfinite(e), axis=1)
     if np.any(good):
@@ -352,28 +362,6 @@ def _nees(e: np.ndarray, cov: np.ndarray) -> np.ndarray:
                 except np.linalg.LinAlgError:
                     pass
     return out
-
-
-def nees_pose(est_poses, est_cov, gt_poses) -> np.ndarray:
-    """Pose NEES (T,), 6 dof, in the Estimate convention (right perturbation, translation
-    first). NaN where the covariance is NaN or singular."""
-    e = pose_errors(est_poses, gt_poses)
-    cov = np.asarray(est_cov, dtype=np.float64)
-    if cov.shape != (e.shape[0], 6, 6):
-        raise InputError(f"pose covariances must have shape ({e.shape[0]}, 6, 6), got {cov.shape}")
-    return _nees(e, cov)
-
-
-def nees_points(est, cov, gt) -> np.ndarray:
-    """Point NEES (N,), 3 dof: ``(gt - est)^T cov^-1 (gt - est)``; NaN where not estimated."""
-    est = np.asarray(est, dtype=np.float64)
-    gt = np.asarray(gt, dtype=np.float64)
-    cov = np.asarray(cov, dtype=np.float64)
-    if est.shape != gt.shape or est.ndim != 2 or est.shape[1] != 3:
-        raise InputError(f"points must be two (N, 3) arrays, got {est.shape} and {gt.shape}")
-    if cov.shape != (est.shape[0], 3, 3):
-        raise InputError(f"point covariances must have shape ({est.shape[0]}, 3, 3), got {cov.shape}")
-    return _nees(gt - est, cov)
 
 
 # --------------------------------------------------------------------------- summary

@@ -12,6 +12,8 @@ import base64
 import html
 from pathlib import Path
 
+from vislam.eval.readings import model_line, readings, sequence_table
+
 #: The order figures appear in on the page (others follow, by name).
 FIGURE_ORDER = ("trajectories.png", "error_over_distance.png", "nees.png", "vs_smoother.png", "map.png")
 
@@ -51,8 +53,6 @@ def _img(path: Path) -> str:
 def report_html(results: dict, folder: Path) -> str:
     """The page for ``results`` (results.json's content) whose drive folders (with their PNG
     figures) are in ``folder``."""
-    from vislam.eval.benchmark import _model_line, readings, sequence_table
-
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
              "<title>vislam benchmark</title>", f"<style>{_STYLE}</style>",
              f"<script>{_IMAGES_LOADED}</script></head><body>", "<h1>vislam benchmark</h1>",
@@ -62,7 +62,7 @@ def report_html(results: dict, folder: Path) -> str:
     for s in results["sequences"]:
         gt = "ground truth" if s["has_ground_truth"] else "no ground truth"
         parts.append(f"<h2>{html.escape(s['name'])} ({s['frames']} frames, {gt})</h2>")
-        model = _model_line(s.get("model"))
+        model = model_line(s.get("model"))
         if model:
             parts.append(f'<p class="model">{html.escape(model)}</p>')
         said = readings(s)

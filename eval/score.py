@@ -3,8 +3,8 @@
 The trajectory (TUM, KITTI or EuRoC CSV: :func:`read_trajectory`) is associated with the
 frames of the drive it was estimated on (:func:`associate`), turned into a vislam
 :class:`~ekf.estimate.Estimate` on the associated frames (:func:`trajectory_estimate`), and
-scored by the benchmark's own code (:func:`eval.benchmark.score_sequence`, hence
-:func:`eval.runjob.trajectory_scores` and :func:`eval.consistency.versus_smoother`): against
+scored by the benchmark's own code (:func:`eval.bench_scores.score_sequence`, hence
+:func:`eval.bench_scores.trajectory_scores` and :func:`eval.consistency.versus_smoother`): against
 ground truth where the drive has one (ATE raw and aligned, KITTI drift t_rel / r_rel, mean pose
 NEES) and against the reference smoother run on the same data exactly as ``vislam bench``
 runs it (the batch smoother started from ekf-invariant's estimate, under the same model:
@@ -45,6 +45,11 @@ import numpy as np
 
 from vislam.ekf.errors import InputError
 from vislam.ekf.estimate import Estimate
+from vislam.eval.bench_scores import RPE_DEFINITION, score_sequence
+from vislam.eval.drives import KnownTruth, collect_sequences
+from vislam.eval.metrics import ALIGN_DESCRIPTIONS, check_align_mode
+from vislam.eval.registry import SMOOTHER_INITIAL_FROM, SMOOTHERS, uses_initial
+from vislam.eval.study import JobFailure, JobResult, run_jobs
 
 log = logging.getLogger(__name__)
 
@@ -294,11 +299,9 @@ def restrict_estimate(est: Estimate, frames: np.ndarray) -> Estimate:
 
 def restrict_truth(gt, frames: np.ndarray):
     """Ground truth (``.frames``, ``.poses``) on ``frames`` only, its frames renumbered as
-    positions in ``frames`` (an eval.benchmark.KnownTruth); None without ground truth."""
+    positions in ``frames`` (an eval.drives.KnownTruth); None without ground truth."""
     if gt is None:
         return None
-    from vislam.eval.benchmark import KnownTruth
-
     frames = np.asarray(frames, dtype=np.int64)
     gt_frames = np.asarray(gt.frames, dtype=np.int64)
     pos, hit = positions_in(frames, gt_frames)
@@ -310,9 +313,7 @@ def restrict_truth(gt, frames: np.ndarray):
 
 def load_drive(data: str | Path):
     """The drive ``data`` (one .npz file) as the benchmark reads it
-    (eval.benchmark.BenchSequence, its ground truth found beside it), before any model."""
-    from vislam.eval.benchmark import collect_sequences
-
+    (eval.drives.BenchSequence, its ground truth found beside it), before any model."""
     if Path(data).is_dir():
         raise InputError(f"{data}: is a folder; --data takes the one .npz file the trajectory "
                          "was estimated on")
@@ -323,18 +324,14 @@ def load_drive(data: str | Path):
 def reference_estimators(smoother) -> list[str]:
     """The estimators ``vislam bench`` runs for its reference: the EKF the batch smoother
     starts from (when it starts from one) and the smoother."""
-    from vislam.eval.registry import SMOOTHER_INITIAL_FROM, uses_initial
-
     return ([SMOOTHER_INITIAL_FROM[0], REFERENCE] if uses_initial(REFERENCE, smoother)
             else [REFERENCE])
 
 
 def run_reference(bs, config, smoother, show_progress: bool = False):
     """The reference smoother on the drive ``bs``, run as ``vislam bench`` runs it
-    (eval.benchmark.run_jobs with :func:`reference_estimators`, the drive's own settings):
-    an eval.runjob.JobResult, or an eval.benchmark.JobFailure when it failed."""
-    from vislam.eval.benchmark import run_jobs
-
+    (eval.study.run_jobs with :func:`reference_estimators`, the drive's own settings):
+    an eval.study.JobResult, or an eval.study.JobFailure when it failed."""
     config = bs.config if bs.config is not None else config
     names = reference_estimators(smoother)
     outcomes = run_jobs({bs.name: bs.sequence}, names, config, jobs=1,
@@ -347,21 +344,16 @@ def run_reference(bs, config, smoother, show_progress: bool = False):
 
 def row_name(traj_path: str | Path) -> str:
     """The trajectory's row name in the table: its file name (never a smoother's name)."""
-    from vislam.eval.registry import SMOOTHERS
-
     name = Path(traj_path).name or str(traj_path)
     return f"{name} (scored)" if name in SMOOTHERS else name
 
 
 def score_on_frames(bs, est: Estimate, frames: np.ndarray, reference=None,
                     align: str = "se3") -> dict:
-    """The benchmark's entry of the drive restricted to ``frames`` (eval.benchmark.
+    """The benchmark's entry of the drive restricted to ``frames`` (eval.bench_scores.
     score_sequence): ``est`` the trajectory's estimate on those frames (its ``estimator`` the
     row name), ``reference`` the smoother's run on the whole drive (JobResult or JobFailure;
     None: no reference), restricted to the same frames."""
-    from vislam.eval.benchmark import JobFailure, score_sequence
-    from vislam.eval.runjob import JobResult
-
     frames = np.asarray(frames, dtype=np.int64)
     sub = dataclasses.replace(bs, gt=restrict_truth(bs.gt, frames))
     outcomes = {est.estimator: JobResult(bs.name, est.estimator, est, 0.0)}
@@ -390,9 +382,6 @@ def score(traj: Trajectory, bs, *, config, smoother, cov=None, t_max_diff: float
     association, alignment, reference, model), ``scores`` (the trajectory's figures, the
     benchmark's keys and ``vs_smoother``) and ``sequence`` (the benchmark's results.json entry
     of the drive on the scored frames, the reference's row included)."""
-    from vislam.eval.metrics import ALIGN_DESCRIPTIONS, check_align_mode
-    from vislam.eval.runjob import RPE_DEFINITION
-
     check_align_mode(align)
     frame_times = bs.sequence.timestamps
     data = bs.path or bs.name
@@ -440,45 +429,3 @@ def score(traj: Trajectory, bs, *, config, smoother, cov=None, t_max_diff: float
                                                      "gt_frames": entry["gt_frames_scored"]},
         "sequence": entry,
     }
-
-
-def score_markdown(result: dict) -> str:
-    """The score as Markdown: what was scored and how, then the benchmark's summary of the
-    drive (eval.benchmark.summary_markdown: readings and the table of figures)."""
-    from vislam.eval.benchmark import summary_markdown
-
-    traj, a, cov = result["trajectory"], result["association"], result["covariance"]
-    if a["by"] == "index":
-        how = "by index (no times in the file)"
-    else:
-        how = (f"by time (|dt| <= {a['t_max_diff_s']:g} s after --t-offset {a['t_offset_s']:g} s; "
-               f"largest |dt| {a['max_abs_diff_s']:.3g} s)")
-    lines = [
-        "# vislam score", "",
-        (f"Trajectory: {traj['path']} ({traj['format']}, {traj['poses']} poses); data: "
-         f"{result['data']['path'] or result['data']['name']} ({result['data']['frames']} frames)."),
-        f"Association: {a['associated_frames']} of {a['trajectory_poses']} poses on frames "
-        f"{a['first_frame']}-{a['last_frame']} {how}; only these frames are scored"
-        + (f" ({a['unmatched_poses']} poses matched no frame)" if a["unmatched_poses"] else "")
-        + (f" ({a['duplicate_poses']} poses on a frame taken by a nearer one)"
-           if a["duplicate_poses"] else "") + ".",
-    ]
-    if cov is None:
-        lines.append(f"Covariance: none; {result['nees']}.")
-    else:
-        lines.append(f"Covariance: {cov['path']} ({cov['kind']}), for "
-                     f"{cov['frames_with_covariance']} of the {a['associated_frames']} scored frames.")
-    ref = result["reference"]
-    if ref is None:
-        lines.append("Reference: not run (--no-reference); the vs-smoother figures are null.")
-    else:
-        lines.append(f"Reference: the batch smoother as vislam bench runs it "
-                     f"({' then '.join(ref['estimators_run'])}); its own row is scored on the "
-                     "same frames.")
-    body = summary_markdown({"rpe_definition": result["rpe_definition"],
-                             "alignment": result["alignment"],
-                             "sequences": [result["sequence"]]})
-    body_lines = body.splitlines()
-    if body_lines and body_lines[0].startswith("# "):
-        body_lines = body_lines[1:]
-    return "\n".join(lines + body_lines).rstrip() + "\n"

@@ -7,12 +7,13 @@ a module-level callable ``(seq, settings) -> Estimate`` (the protocol:
 or ``module:function`` for a callable. To show one under another label, pass a dict
 ``{label: estimator}``.
 
-**Monte Carlo** (:func:`monte_carlo`): one simulated drive, its velocity and pixel noise redrawn
-per run (``eval.benchmark.redraw_noise``, ``numpy.random.default_rng([seed, run])``), every
-estimator on every run through ``eval.benchmark.run_jobs`` (``jobs`` worker processes), and the
-reference (the smoother by default) beside them. A :class:`MonteCarloStudy` keeps, per estimator
-and run, the pose NEES against truth (6 dof), the landmark NEES per source track (3 dof) and the
-pose NEES against the reference of the same run (normalised by the estimator's covariance).
+**Monte Carlo** (:func:`monte_carlo`): the engine of ``vislam nees``
+(:func:`eval.montecarlo.run_monte_carlo`): one simulated drive, its velocity and pixel noise
+redrawn per run (``numpy.random.default_rng([seed, run])``), every estimator on every run
+(``jobs`` worker processes), and the reference (the smoother by default) beside them. A
+:class:`MonteCarloStudy` keeps, per estimator and run, the pose NEES against truth (6 dof), the
+landmark NEES per source track (3 dof) and the pose NEES against the reference of the same run
+(normalised by the estimator's covariance).
 
 **Checks** (each a :class:`Check`, whose ``message`` states the figure, the bounds and the
 verdict), and the assertions that raise ``AssertionError(message)`` when one fails:
@@ -33,19 +34,16 @@ verdict), and the assertions that raise ``AssertionError(message)`` when one fai
 A run that fails is never hidden: a check of an estimator with failed runs fails (unless
 ``max_failed_runs`` allows them) and its message names the runs and the first error. vislam's
 own estimators that fail are recorded per run; a user's estimator that raises or breaks the
-Estimate contract stops its own runs (``run_jobs`` treats it as bad input), and the study
-records the error and how many runs it had finished.
+Estimate contract stops its own runs (:func:`eval.study.run_jobs` treats it as bad input), and
+the study records the error and how many runs it had finished.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -61,6 +59,12 @@ from vislam.eval.consistency import (
     AneesResult,
     anees,
 )
+from vislam.eval.bench_scores import trajectory_scores
+from vislam.eval.drives import as_given, bench_sequence, identify_models
+from vislam.eval.montecarlo import run_monte_carlo, study_sim_config
+from vislam.eval.registry import display_name
+from vislam.eval.study import JobFailure, labelled_estimators, run_groups
+from vislam.graph.settings import SmootherSettings
 
 __all__ = [
     "NEAR_FIELD",
@@ -127,70 +131,6 @@ def _failures_text(failed: int, runs: int, errors: list[str]) -> str:
     first = errors[0] if errors else "no error recorded"
     more = f" (and {len(errors) - 1} more errors)" if len(errors) > 1 else ""
     return f"{failed} of {runs} runs failed: {first}{more}"
-
-
-# --- estimators ------------------------------------------------------------------------------
-
-
-def _labelled(estimators) -> dict[str, Any]:
-    """{label: estimator} from one estimator, a list of them or a dict label -> estimator."""
-    from vislam.eval.registry import display_name, resolve
-
-    if isinstance(estimators, Mapping):
-        items = [(str(k), v) for k, v in estimators.items()]
-    else:
-        if isinstance(estimators, str) or callable(estimators):
-            estimators = [estimators]
-        items = [(display_name(e), e) for e in estimators]
-    out: dict[str, Any] = {}
-    for label, spec in items:
-        if not (isinstance(spec, str) or callable(spec)):
-            raise TypeError(f"estimator {label!r}: expected a name, 'MODULE:FUNCTION' or a "
-                            f"callable (seq, settings) -> Estimate, got {type(spec).__name__}")
-        if label in out and display_name(out[label]) != display_name(spec):
-            raise ValueError(f"two estimators are shown as {label!r}: pass a dict "
-                             "{label: estimator} to tell them apart")
-        resolve(spec)  # an unknown name or a user's module that cannot be imported: say so now
-        out[label] = spec
-    if not out:
-        raise ValueError("no estimator given")
-    return out
-
-
-def _groups(specs: Iterable) -> list[list]:
-    """Run groups: vislam's own estimators together (the smoother starts from the EKF), each
-    user's estimator apart (one that raises stops only its own runs)."""
-    from vislam.eval.registry import BUILTIN_ENTRY_POINTS, display_name
-
-    own, user, seen = [], [], set()
-    for spec in specs:
-        key = display_name(spec)
-        if key in seen:
-            continue
-        seen.add(key)
-        if isinstance(spec, str) and spec in BUILTIN_ENTRY_POINTS:
-            own.append(spec)
-        else:
-            user.append([spec])
-    return ([own] if own else []) + user
-
-
-def _run_groups(sequences, specs, config, jobs, smoother, on_result, on_user_error) -> None:
-    """``run_jobs`` group by group (:func:`_groups`); ``on_user_error(display name, message)``
-    when a user's estimator stopped its runs."""
-    from vislam.eval.benchmark import run_jobs
-    from vislam.eval.registry import UserEstimatorError, display_name
-
-    for group in _groups(specs):
-        try:
-            outcomes = run_jobs(sequences, group, config, jobs=jobs, show_progress=False,
-                                on_result=on_result, smoother=smoother)
-        except UserEstimatorError as exc:
-            if len(group) != 1:
-                raise
-            on_user_error(display_name(group[0]), str(exc))
-            continue
-        outcomes.clear()
 
 
 # --- Monte Carlo -----------------------------------------------------------------------------
@@ -321,8 +261,6 @@ class MonteCarloStudy:
 
 
 def _pick(study, name) -> str:
-    from vislam.eval.registry import display_name
-
     if name is None:
         if len(study.subjects) != 1:
             raise ValueError(f"the study has {len(study.subjects)} estimators "
@@ -332,23 +270,6 @@ def _pick(study, name) -> str:
     if label not in study.estimators:
         raise KeyError(f"{label!r} is not in the study ({', '.join(study.estimators)})")
     return label
-
-
-def _sim_config(sim, seed, frames):
-    from vislam.eval.simulate import DEFAULT_SIM, SimConfig
-
-    if isinstance(sim, SimConfig):
-        if seed is not None or frames is not None:
-            raise ValueError("sim is a SimConfig: its seed and n_frames are used; leave seed and "
-                             "frames out")
-        return sim
-    if sim is not None and not isinstance(sim, Mapping):
-        raise TypeError(f"sim: None, a dict of SimConfig fields or a SimConfig, got {type(sim).__name__}")
-    seed = 0 if seed is None else int(seed)
-    frames = 120 if frames is None else int(frames)
-    changes = dict(sim or {})
-    changes.setdefault("name", f"monte-carlo-seed{seed}")
-    return dataclasses.replace(DEFAULT_SIM, seed=seed, n_frames=frames, **changes)
 
 
 def monte_carlo(estimators, runs: int = 10, frames: int | None = None, seed: int | None = None,
@@ -364,84 +285,26 @@ def monte_carlo(estimators, runs: int = 10, frames: int | None = None, seed: int
     ``reference`` the estimator the others are compared with (a label among ``estimators`` or an
     estimator; None: none). ``jobs`` worker processes (1: in this process, where any callable
     works; more: a callable must be importable by its module and name)."""
-    from vislam.eval.benchmark import JobFailure, landmark_nees_by_source, monte_carlo_drives
-    from vislam.eval.consistency import pose_nees
-    from vislam.eval.registry import display_name
-
     if int(runs) < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
     runs = int(runs)
     t0 = time.perf_counter()
-    labelled = _labelled(estimators)
+    labelled = labelled_estimators(estimators)
     subjects = tuple(labelled)
     ref_label = None
     if reference is not None:
         given_label = isinstance(reference, str) and reference in labelled
         ref_label = reference if given_label else display_name(reference)
         if ref_label not in labelled:
-            labelled.update(_labelled({ref_label: reference}))
+            labelled.update(labelled_estimators({ref_label: reference}))
     config = config if config is not None else FilterConfig()
-    sim_config = _sim_config(sim, seed, frames)
-    truth, seqs = monte_carlo_drives(sim_config, runs)
-    T = truth.sequence.n_frames
-    by_run: dict[str, list[str]] = {}
-    for label, spec in labelled.items():
-        by_run.setdefault(display_name(spec), []).append(label)
-
-    study = MonteCarloStudy(runs, T, int(sim_config.seed), sim_config, config, ref_label, subjects,
-                            tuple(labelled))
-    for n in labelled:
-        study.pose_nees[n] = np.full((runs, T), np.nan)
-        study.landmark_nees[n] = np.full((runs, truth.landmarks.shape[0]), np.nan)
-        study.completed[n] = np.zeros(runs, dtype=bool)
-        study.errors[n] = []
-        if ref_label is not None and n != ref_label:
-            study.versus_reference[n] = np.full((runs, T), np.nan)
-    frames_all = np.arange(T)
-    ref_poses: dict[int, np.ndarray] = {}  # run -> the reference's poses
-    waiting: dict[int, list] = {}  # run -> [(labels, poses, pose_cov)] until its reference is done
-
-    def compare(i: int, labels, poses, cov) -> None:
-        est = SimpleNamespace(n_frames=T, poses=poses, pose_cov=cov)
-        nees = pose_nees(est, frames_all, ref_poses[i])
-        for n in labels:
-            if n != ref_label:
-                study.versus_reference[n][i] = nees
-
-    def reduce(res) -> None:
-        i = int(res.sequence[3:])
-        labels = by_run[res.estimator]
-        if isinstance(res, JobFailure):
-            for n in labels:
-                study.errors[n].append(f"{res.sequence}: {res.error}")
-            return
-        est = res.estimate
-        pn = pose_nees(est, frames_all, truth.poses)
-        ln = landmark_nees_by_source(est, truth.landmarks)
-        for n in labels:
-            study.pose_nees[n][i] = pn
-            study.landmark_nees[n][i] = ln
-            study.completed[n][i] = True
-        if ref_label is None:
-            return
-        if ref_label in labels:
-            ref_poses[i] = np.array(est.poses)
-            for item in waiting.pop(i, []):
-                compare(i, *item)
-        if any(n != ref_label for n in labels):
-            item = (labels, np.array(est.poses), np.array(est.pose_cov))
-            if i in ref_poses:
-                compare(i, *item)
-            else:
-                waiting.setdefault(i, []).append(item)
-
-    def stopped(run_label: str, message: str) -> None:
-        for n in by_run[run_label]:
-            done = int(np.count_nonzero(study.completed[n]))
-            study.errors[n].append(f"{message} (a user's estimator that fails stops its runs: "
-                                   f"{done} done before)")
-
-    _run_groups(seqs, list(labelled.values()), config, jobs, smoother, reduce, stopped)
+    sim_config = study_sim_config(sim, seed, frames)
+    found = run_monte_carlo(sim_config, runs, labelled, config, reference=ref_label,
+                            smoother=smoother, jobs=jobs, isolate_user_estimators=True)
+    study = MonteCarloStudy(
+        runs, found.frames, int(sim_config.seed), sim_config, config, ref_label, subjects,
+        tuple(labelled), found.pose_nees, found.landmark_nees, found.versus_reference,
+        found.completed, {n: [str(f) for f in fs] for n, fs in found.failures.items()})
     study.wall_s = time.perf_counter() - t0
     return study
 
@@ -561,50 +424,21 @@ class DriveStudy:
         return out
 
 
-def _bench_sequence(drive):
-    """A BenchSequence from a path (ground truth beside it), a SimConfig or a SimResult."""
-    from vislam.eval.benchmark import BenchSequence, KnownTruth, load_bench_sequence
-    from vislam.eval.simulate import SimConfig, SimResult, simulate
-
-    if isinstance(drive, BenchSequence):
-        return drive
-    if isinstance(drive, SimConfig):
-        drive = simulate(drive)
-    if isinstance(drive, SimResult):
-        T = drive.sequence.n_frames
-        return BenchSequence(drive.sequence.name, None, drive.sequence,
-                             KnownTruth(np.arange(T), drive.poses), drive.landmarks,
-                             {"simulation": dataclasses.asdict(drive.config)})
-    if isinstance(drive, (str, Path)):
-        from vislam.ekf.errors import InputError
-
-        path = Path(drive)
-        if not path.is_file():
-            raise InputError(f"{path}: no such drive")
-        return load_bench_sequence(path)
-    raise TypeError(f"drive: a path to a .npz, a SimConfig or a SimResult, got {type(drive).__name__}")
-
-
 def run_drive(estimators, drive, *, config: FilterConfig | None = None, model: str = "as-given",
               smoother=None, jobs: int = 1, align: str = "se3") -> DriveStudy:
     """Run ``estimators`` (one, a list or ``{label: estimator}``) on one drive and score them
-    against its ground truth (``eval.runjob.trajectory_scores``, ``align`` before the aligned
+    against its ground truth (``eval.bench_scores.trajectory_scores``, ``align`` before the aligned
     ATE). ``drive``: a path to a ``.npz`` (ground truth ``DIR/groundtruth/NAME.txt`` beside it,
     as ``vislam bench`` finds it), or a simulated drive (a SimConfig or a SimResult).
     ``model``: "as-given" (the file's values and ``config`` as given) or "identified" (the model
     identified from the drive's own data, as ``vislam bench`` does by default; cached)."""
-    from vislam.eval.benchmark import JobFailure, as_given, identify_models
-    from vislam.eval.registry import display_name
-    from vislam.eval.runjob import trajectory_scores
-    from vislam.graph.settings import SmootherSettings
-
     if model not in ("as-given", "identified"):
         raise ValueError(f"model: 'as-given' or 'identified', got {model!r}")
     t0 = time.perf_counter()
-    labelled = _labelled(estimators)
+    labelled = labelled_estimators(estimators)
     config = config if config is not None else FilterConfig()
     smoother = smoother if smoother is not None else SmootherSettings()
-    bs = _bench_sequence(drive)
+    bs = bench_sequence(drive)
     if model == "identified":
         (bs,) = identify_models([bs], config, smoother)
     elif bs.model is None:
@@ -628,8 +462,8 @@ def run_drive(estimators, drive, *, config: FilterConfig | None = None, model: s
         for n in by_run[run_label]:
             study.errors[n] = message
 
-    _run_groups({bs.name: bs.sequence}, list(labelled.values()), run_config, jobs, smoother,
-                reduce, stopped)
+    run_groups({bs.name: bs.sequence}, list(labelled.values()), run_config, jobs, smoother,
+               reduce, stopped)
     study.wall_s = time.perf_counter() - t0
     return study
 

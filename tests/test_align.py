@@ -225,7 +225,7 @@ def test_se3_alignment_matches_evo():
 
 def test_an_unknown_mode_is_an_input_error_naming_it_and_the_valid_ones():
     from vislam.eval.consistency import ate_or_none, versus_smoother
-    from vislam.eval.runjob import trajectory_scores
+    from vislam.eval.bench_scores import trajectory_scores
 
     assert ALIGN_MODES == ("se3", "sim3", "yaw", "none")
     assert check_align_mode("yaw") == "yaw"
@@ -247,9 +247,9 @@ def test_an_unknown_mode_is_an_input_error_naming_it_and_the_valid_ones():
 
 
 def test_scores_and_versus_smoother_use_the_alignment():
-    from vislam.eval.benchmark import KnownTruth
+    from vislam.eval.drives import KnownTruth
     from vislam.eval.consistency import versus_smoother
-    from vislam.eval.runjob import trajectory_scores
+    from vislam.eval.bench_scores import trajectory_scores
 
     rng = np.random.default_rng(9)
     gt = _drive(rng, n=60)
@@ -276,8 +276,8 @@ def test_scores_and_versus_smoother_use_the_alignment():
 
 
 def test_bench_align_yaw_records_the_alignment(tmp_path):
-    from vislam.eval.benchmark import simulated_sequence
-    from vislam.eval.runjob import trajectory_scores
+    from vislam.eval.drives import simulated_sequence
+    from vislam.eval.bench_scores import trajectory_scores
 
     out = tmp_path / "bench"
     names = ["dead-reckoning", "ekf-invariant"]

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from vislam.ekf.config import FilterConfig
-from vislam.eval import benchmark
+from vislam.eval import bench_output, bench_scores, drives, montecarlo, readings, study
 from vislam.eval.cli import main
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -18,13 +18,13 @@ FAST = "dead-reckoning,ekf-joint,smoother"
 
 
 def _check_schema(results: dict, estimators: list[str]) -> None:
-    assert results["schema"] == benchmark.SCHEMA and results["rpe_definition"]
+    assert results["schema"] == bench_scores.SCHEMA and results["rpe_definition"]
     for s in results["sequences"]:
-        assert set(benchmark.SEQUENCE_KEYS) <= set(s)
+        assert set(bench_scores.SEQUENCE_KEYS) <= set(s)
         assert [r["name"] for r in s["estimators"]] == estimators
         for r in s["estimators"]:
-            assert set(benchmark.ESTIMATOR_KEYS) <= set(r), r
-            assert set(benchmark.VS_SMOOTHER_KEYS) <= set(r["vs_smoother"]), r
+            assert set(bench_scores.ESTIMATOR_KEYS) <= set(r), r
+            assert set(bench_scores.VS_SMOOTHER_KEYS) <= set(r["vs_smoother"]), r
 
 
 @pytest.mark.slow
@@ -75,11 +75,11 @@ def test_bench_leaves_nothing_when_interrupted(tmp_path, monkeypatch, exc):
     def fail(*args, **kwargs):
         raise exc
 
-    monkeypatch.setattr(benchmark, "summary_markdown", fail)  # after TUM files and figures
+    monkeypatch.setattr(bench_output, "summary_markdown", fail)  # after TUM files and figures
     out = tmp_path / "bench"
     with pytest.raises(type(exc)):
-        benchmark.run_benchmark(
-            benchmark.collect_sequences([], frames=30), ["dead-reckoning"],
+        bench_output.run_benchmark(
+            drives.collect_sequences([], frames=30), ["dead-reckoning"],
             FilterConfig(), out,
             show_progress=False,
         )
@@ -90,7 +90,7 @@ def test_bench_keeps_a_previous_result_when_a_rerun_fails(tmp_path, monkeypatch)
     out = tmp_path / "bench"
     assert main(["bench", "--frames", "30", "-e", "dead-reckoning", "-j", "1", "--out", str(out), "-q"]) == 0
     before = (out / "results.json").read_text()
-    monkeypatch.setattr(benchmark, "summary_markdown", lambda r: 1 / 0)
+    monkeypatch.setattr(bench_output, "summary_markdown", lambda r: 1 / 0)
     with pytest.raises(ZeroDivisionError):
         main(["bench", "--frames", "30", "-e", "dead-reckoning", "-j", "1", "--out", str(out), "-q"])
     assert (out / "results.json").read_text() == before
@@ -119,8 +119,8 @@ def test_failed_estimator_is_recorded_with_null_figures(tmp_path, monkeypatch):
         return real(name)
 
     monkeypatch.setattr(registry, "get_estimator", fake)
-    res = benchmark.run_benchmark(
-        benchmark.collect_sequences([], frames=30), ["dead-reckoning", "ekf-joint"],
+    res = bench_output.run_benchmark(
+        drives.collect_sequences([], frames=30), ["dead-reckoning", "ekf-joint"],
         FilterConfig(), tmp_path / "b",
         show_progress=False,
     )
@@ -135,8 +135,8 @@ def test_redrawn_noise_keeps_the_drive_and_changes_the_noise():
 
     cfg = SimConfig(seed=3, n_frames=40)
     truth = simulate(SimConfig(seed=3, n_frames=40, noise_free=True))
-    a = benchmark.redraw_noise(truth, cfg, np.random.default_rng([3, 0]))
-    b = benchmark.redraw_noise(truth, cfg, np.random.default_rng([3, 1]))
+    a = montecarlo.redraw_noise(truth, cfg, np.random.default_rng([3, 0]))
+    b = montecarlo.redraw_noise(truth, cfg, np.random.default_rng([3, 1]))
     assert a.n_tracks == b.n_tracks == truth.sequence.n_tracks
     dv = a.linear_velocity - truth.true_velocities[:, :3]
     assert 0.3 < dv.std() < 0.7  # velocity_sigma 0.5
@@ -246,12 +246,12 @@ def test_bench_falls_back_to_as_given_when_the_model_cannot_be_identified(tmp_pa
 
 def test_summary_says_which_model_and_when_the_reference_is_not_a_fair_yardstick():
     base = {"name": "d", "frames": 10, "has_ground_truth": True, "reference_smoother": "smoother"}
-    row = {k: None for k in benchmark.ESTIMATOR_KEYS}
-    row["vs_smoother"] = {k: None for k in benchmark.VS_SMOOTHER_KEYS}
+    row = {k: None for k in bench_scores.ESTIMATOR_KEYS}
+    row["vs_smoother"] = {k: None for k in bench_scores.VS_SMOOTHER_KEYS}
 
     def summary(nees, model):
         r = {**row, "name": "smoother", "nees_pose_mean": nees}
-        return benchmark.summary_markdown({"rpe_definition": "x", "sequences": [
+        return readings.summary_markdown({"rpe_definition": "x", "sequences": [
             {**base, "model": model, "estimators": [r]}]})
 
     identified = {"mode": "identified", "cached": True, "model": {
@@ -269,8 +269,8 @@ def test_summary_says_which_model_and_when_the_reference_is_not_a_fair_yardstick
 
 
 def test_summary_reads_the_results_in_words_and_drops_empty_columns():
-    row = {k: None for k in benchmark.ESTIMATOR_KEYS}
-    vs = {k: None for k in benchmark.VS_SMOOTHER_KEYS}
+    row = {k: None for k in bench_scores.ESTIMATOR_KEYS}
+    vs = {k: None for k in bench_scores.VS_SMOOTHER_KEYS}
 
     def est(name, ate, nees, vs_nees=None, error=None):
         return {**row, "name": name, "error": error, "runtime_s": 1.0, "ate_aligned_m": ate,
@@ -280,8 +280,8 @@ def test_summary_reads_the_results_in_words_and_drops_empty_columns():
            "estimators": [est("dead-reckoning", 3.5, 7.3), est("ekf-decoupled", 13.0, 2.04e10, 6.7e14),
                           est("ekf-joint", 5.2, 17.8, 6.6), est("smoother", 2.6, 146.0),
                           est("ekf-invariant", None, None, error="boom")]}
-    text = benchmark.summary_markdown({"rpe_definition": "x", "sequences": [seq]})
-    said = benchmark.readings(seq)
+    text = readings.summary_markdown({"rpe_definition": "x", "sequences": [seq]})
+    said = readings.readings(seq)
     assert said[0] == "Failed: ekf-invariant (see results.json)."
     assert said[1] == "Most accurate: smoother (aligned ATE 2.60 m); the best EKF is ekf-joint (5.20 m)."
     assert ("consistent: dead-reckoning (7.3); overconfident: ekf-decoupled (2.0e10), "
@@ -293,7 +293,7 @@ def test_summary_reads_the_results_in_words_and_drops_empty_columns():
     assert header == "| estimator | time (s) | ATE al. (m) | NEES | vs sm. NEES |"
     assert "| ekf-decoupled | 1.00 | 13.00 | 2.0e10 | 6.7e14 |" in text
     assert "20400000000" not in text
-    assert benchmark._fmt(0.0054) == "5.4e-3" and benchmark._fmt(0.0) == "0.00" and benchmark._fmt(123.456) == "123.46"
+    assert readings.format_figure(0.0054) == "5.4e-3" and readings.format_figure(0.0) == "0.00" and readings.format_figure(123.456) == "123.46"
 
 
 def test_bench_on_a_missing_path_says_where_the_drives_are(tmp_path, monkeypatch, capsys):
@@ -309,13 +309,13 @@ def test_progress_names_the_jobs_running_not_the_one_finished():
 
     futs = [cf.Future() for _ in range(4)]
     labels = dict(zip(futs, ["smoother on 0027", "ekf-joint on 0027", "ekf-joint on 0034", "mapping on 0034"]))
-    assert benchmark._running(labels, set(futs)) == "waiting"  # queued, none started
+    assert study.progress_words(labels, set(futs)) == "waiting"  # queued, none started
     futs[0].set_running_or_notify_cancel()
-    assert benchmark._running(labels, set(futs)) == "running smoother on 0027"
+    assert study.progress_words(labels, set(futs)) == "running smoother on 0027"
     for f in futs[1:]:
         f.set_running_or_notify_cancel()
-    assert benchmark._running(labels, set(futs)) == "running ekf-joint on 0027, ekf-joint on 0034 and 2 more"
-    assert benchmark._running(labels, set()) == "finishing"
+    assert study.progress_words(labels, set(futs)) == "running ekf-joint on 0027, ekf-joint on 0034 and 2 more"
+    assert study.progress_words(labels, set()) == "finishing"
 
 
 def test_model_cache_key_ignores_what_identification_overrides():
@@ -344,23 +344,23 @@ def test_a_model_on_a_drive_with_ground_truth_records_the_truths_lever_arm(tmp_p
     result = simulate(SimConfig(seed=3, n_frames=120, name="arm", velocity_sigma=0.05,
                                 file_extrinsic_fault="kitti"))
     paths = write_simulation(result, tmp_path)
-    (bs,) = benchmark.collect_sequences([str(paths["data"])])
+    (bs,) = drives.collect_sequences([str(paths["data"])])
     model = Model(velocity_sigma=(0.05,) * 3, gyro_sigma=(0.05,) * 3, pixel_sigma=1.0,
                   velocity_pairing="mean", cam_T_imu=result.cam_T_imu)
-    (done,) = benchmark.apply_model_to([bs], model, FilterConfig(), "config")
+    (done,) = drives.apply_model_to([bs], model, FilterConfig(), "config")
     arm = done.model["lever_arm"]
     true = lever_arm(result.cam_T_imu)
     np.testing.assert_allclose(arm["model"], true)
     z = (np.array(arm["ground_truth"]) - true) / np.array(arm["ground_truth_sigma"])
     assert np.all(np.abs(z[:2]) < 3), arm
-    line = benchmark._model_line(done.model)
+    line = readings.model_line(done.model)
     assert "the ground truth's" in line and "no vision" in line
-    short = benchmark.collect_sequences([str(write_simulation(
+    short = drives.collect_sequences([str(write_simulation(
         simulate(SimConfig(seed=3, n_frames=12, name="short")), tmp_path / "s")["data"])])
-    (done,) = benchmark.apply_model_to(short, model, FilterConfig(), "config")
+    (done,) = drives.apply_model_to(short, model, FilterConfig(), "config")
     assert done.model["lever_arm"]["ground_truth"] is None
     assert "usable intervals" in done.model["lever_arm"]["ground_truth_error"]
-    assert "the ground truth's" not in benchmark._model_line(done.model)
+    assert "the ground truth's" not in readings.model_line(done.model)
 
 
 def test_the_model_line_names_which_errors_are_correlated_in_time():
@@ -371,7 +371,7 @@ def test_the_model_line_names_which_errors_are_correlated_in_time():
     def line(**times):
         model = Model(velocity_sigma=(0.05,) * 3, gyro_sigma=(0.005,) * 3, pixel_sigma=1.0,
                       velocity_pairing="next", cam_T_imu=np.eye(4), **times)
-        return benchmark._model_line({"mode": "config", "model": model.to_dict()})
+        return readings.model_line({"mode": "config", "model": model.to_dict()})
 
     assert "correlated in time" not in line()
     both = line(velocity_correlation_time=(7.0, 11.5, 1.0), gyro_correlation_time=(2.5, 1.0, 1.0))

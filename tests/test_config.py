@@ -71,7 +71,7 @@ import math  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from vislam.ekf.config import FILTER_RULES, MAX_SETTINGS_BYTES  # noqa: E402
-from vislam.eval.runjob import add_filter_arguments, filter_config_from_args, smoother_settings_from_args  # noqa: E402
+from vislam.eval.commands.options import add_filter_arguments, filter_config_from_args, smoother_settings_from_args  # noqa: E402
 from vislam.graph.settings import SMOOTHER_RULES, SmootherSettings  # noqa: E402
 
 

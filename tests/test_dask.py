@@ -102,7 +102,7 @@ def _figures(results: dict) -> dict:
 
 @pytest.mark.slow
 def test_monte_carlo_nees_gives_the_same_numbers_locally_and_on_dask(dask_installed):
-    from vislam.eval.benchmark import monte_carlo_nees
+    from vislam.eval.montecarlo import monte_carlo_nees
 
     def study(executor: str, jobs: int) -> dict:
         return monte_carlo_nees(6, 3, NEES_ESTIMATORS, FilterConfig(), frames=40, jobs=jobs,
@@ -169,8 +169,8 @@ def test_bench_gives_the_same_figures_on_a_dask_cluster_and_leaves_it_running(cl
 def test_a_failed_run_is_recorded_not_fatal_on_dask(cluster):
     """A drive that makes every estimator fail (a velocity that is not finite) among good ones:
     its jobs are recorded as failures, the others run, the same as with the local pool."""
-    from vislam.eval.benchmark import JobFailure, run_jobs, simulated_sequence
-    from vislam.eval.runjob import JobResult
+    from vislam.eval.drives import simulated_sequence
+    from vislam.eval.study import JobFailure, JobResult, run_jobs
 
     good = simulated_sequence(0, 30).sequence
     v = good.linear_velocity.copy()

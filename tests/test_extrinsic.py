@@ -294,7 +294,7 @@ def test_short_default_drives_keep_their_true_extrinsic(frames, seed):
     """The three drives of a 12-drive sweep (80, 150, 300 frames; seeds 0-3) on which the 99 %
     chi-square refuted the file's true extrinsic (Wald 26.9, 16.7, 25.9): vislam bench then ran
     every estimator 3 sigma off the truth (pose NEES ~6000 at 80 frames). BIC keeps it."""
-    from vislam.eval.benchmark import collect_sequences, identify_models
+    from vislam.eval.drives import collect_sequences, identify_models
 
     (bs,) = collect_sequences([], frames=frames, seed=seed)
     (out,) = identify_models([bs], FilterConfig(), SmootherSettings())

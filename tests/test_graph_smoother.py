@@ -149,10 +149,10 @@ def test_noisy_smoother_beats_the_ekf(noisy):
     ate_smoother = ate_rmse(est.poses, noisy.poses)
     assert ate_smoother < ate_ekf, (ate_smoother, ate_ekf)
     # the covariance is roughly consistent: mean pose NEES within a loose band of 6
-    from vislam.eval.metrics import nees_pose
+    from vislam.eval.metrics import nees, pose_errors
 
-    nees = nees_pose(est.poses, est.pose_cov, noisy.poses)
-    assert 1.0 < np.mean(nees) < 20.0
+    values = nees(pose_errors(est.poses, noisy.poses), est.pose_cov)
+    assert 1.0 < np.mean(values) < 20.0
 
 
 def _small_graph(sim):

@@ -15,7 +15,7 @@ from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import InputError
 from vislam.ekf.geometry import se3_exp
 from vislam.ekf.model import EXTRINSIC_COMPONENTS, Model, apply_model, model_config, model_sequence
-from vislam.eval.runjob import add_filter_arguments, filter_config_from_args, model_from_args
+from vislam.eval.commands.options import add_filter_arguments, filter_config_from_args, model_from_args
 from vislam.eval.simulate import KITTI_CAM_T_IMU, SimConfig, simulate, write_simulation
 
 
@@ -257,7 +257,7 @@ def test_the_true_model_of_a_faulty_drive_makes_estimates_much_better(tmp_path):
     from vislam.eval.consistency import ate_or_none
     from vislam.eval.groundtruth import find_ground_truth
     from vislam.eval.loader import load_sequence
-    from vislam.eval.runjob import run_estimator
+    from vislam.eval.study import run_estimator
 
     cfg = SimConfig(seed=11, n_frames=250, velocity_sigma=0.05, gyro_sigma=0.005,
                     gyro_bias=(0.004, -0.003, 0.006), velocity_pairing="next",

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from vislam.eval.benchmark import DEFAULT_NEES_FRAMES, nees_sim_config
+from vislam.eval.montecarlo import DEFAULT_NEES_FRAMES, nees_sim_config
 from vislam.eval.cli import main
 from vislam.eval.simulate import DEFAULT_SIM, simulate
 

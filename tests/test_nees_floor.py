@@ -7,8 +7,8 @@ import numpy as np
 import vislam.ekf.invariant as invariant
 import vislam.ekf.joint as joint
 from vislam.ekf.config import FilterConfig
-from vislam.eval.benchmark import monte_carlo_drives, nees_sim_config
-from vislam.eval.runjob import run_estimator
+from vislam.eval.montecarlo import monte_carlo_drives, nees_sim_config
+from vislam.eval.study import run_estimator
 
 
 def test_the_recorder_sees_every_stacked_update_and_restores_the_module(benchmark_script):

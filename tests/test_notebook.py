@@ -80,7 +80,8 @@ def test_notebook_executes_on_a_folder_without_ground_truth(monkeypatch, tmp_pat
     """A results folder of a drive file without ground truth (as 0034 is): the notebook loads
     the saved estimates, says that accuracy needs ground truth, and draws the rest."""
     from vislam.ekf.config import FilterConfig
-    from vislam.eval.benchmark import collect_sequences, run_benchmark
+    from vislam.eval.bench_output import run_benchmark
+    from vislam.eval.drives import collect_sequences
     from vislam.eval.sim_files import write_simulation
     from vislam.eval.simulate import SimConfig, simulate
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from vislam.ekf.errors import InputError
-from vislam.eval import benchmark
+from vislam.eval import study
 from vislam.eval.cli import main
 from vislam.eval.output_dir import MARKER, OutputDir
 
@@ -42,12 +42,10 @@ def snapshot(folder: Path) -> dict[str, bytes]:
 
 def no_estimation(monkeypatch):
     """Fail the test if any estimator starts: output checks come first."""
-    import vislam.eval.runjob as eval_runjob
     def boom(*args, **kwargs):
         raise AssertionError("an estimator ran before the output folder was checked")
 
-    monkeypatch.setattr(eval_runjob, "run_estimator", boom)
-    monkeypatch.setattr(benchmark, "run_estimator", boom)
+    monkeypatch.setattr(study, "run_estimator", boom)
 
 
 def run_cli(argv, capsys) -> tuple[int, str]:

@@ -15,7 +15,7 @@ import pytest
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import EstimationError, InputError
 from vislam.eval import registry
-from vislam.eval.benchmark import simulated_sequence
+from vislam.eval.drives import simulated_sequence
 from vislam.eval.cli import main
 
 try:
@@ -249,7 +249,7 @@ def test_a_missing_user_module_exits_2_before_any_work(user_folder, tmp_path, ca
 
 
 def test_a_user_estimator_has_a_colour_of_its_own_in_every_figure(monkeypatch, tmp_path):
-    from vislam.eval import benchmark, plots
+    from vislam.eval import drive_figures, plots
 
     for name in ("my_filter:estimate", "pkg.mod:run", "other:estimate"):
         colour = plots.line_style(name, i=3)["color"]
@@ -267,5 +267,5 @@ def test_a_user_estimator_has_a_colour_of_its_own_in_every_figure(monkeypatch, t
     ests = {n: registry.get_estimator(n)(bs.sequence, FilterConfig())
             for n in ("dead-reckoning", "smoother")}
     ests["user:estimate"] = ests["dead-reckoning"]
-    benchmark.sequence_figures(tmp_path, bs, ests)
+    drive_figures.sequence_figures(tmp_path, bs, ests)
     assert seen["names"] == ["user:estimate"]

@@ -2,7 +2,7 @@
 
 Random TOML documents (keys from the valid set plus junk; values of every TOML type, including
 nan, inf, huge, tiny, negative, strings, arrays, tables; odd layouts; corrupted or random bytes)
-are written to a file and read the way the command line reads them (eval.runjob
+are written to a file and read the way the command line reads them (eval.commands.options
 ``filter_config_from_args`` then ``smoother_settings_from_args``). Property: either an
 InputError, one line, naming the file; or settings whose every field follows its rule, whose
 values are the file's, and whose covariances are finite and positive definite. Nothing else may
@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 
 from vislam.ekf.config import FILTER_RULES, FilterConfig
 from vislam.ekf.errors import InputError
-from vislam.eval.runjob import filter_config_from_args, smoother_settings_from_args
+from vislam.eval.commands.options import filter_config_from_args, smoother_settings_from_args
 from vislam.graph.settings import SMOOTHER_RULES, SmootherSettings
 
 EXAMPLES = int(os.environ.get("VISLAM_PROPERTY_EXAMPLES", "500"))

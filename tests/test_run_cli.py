@@ -162,11 +162,11 @@ def test_run_bad_file_exits_2_and_writes_nothing(sim_file, tmp_path, capsys):
 
 
 def test_run_leaves_nothing_when_the_estimator_fails(sim_file, tmp_path, monkeypatch):
-    import vislam.eval.runjob as runjob
+    import vislam.eval.commands.run as run_command
     def boom(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(runjob, "write_map_npz", boom)  # mid-way through writing outputs
+    monkeypatch.setattr(run_command, "write_map_npz", boom)  # mid-way through writing outputs
     out = tmp_path / "out"
     assert main(["run", str(sim_file), "-e", "dead-reckoning", "--out", str(out), "-q"]) == 130
     assert list(tmp_path.iterdir()) == []

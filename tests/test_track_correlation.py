@@ -13,7 +13,7 @@ import pytest
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import InputError
 from vislam.ekf.model import Model, long_run_pixel_sigma, model_config
-from vislam.eval.benchmark import _drift_along_tracks
+from vislam.eval.montecarlo import drift_along_tracks
 from vislam.eval.simulate import DEFAULT_SIM, SimConfig, drifting_noise, simulate
 from vislam.graph.factors import StereoRows
 from vislam.graph.track_correlation import (
@@ -199,10 +199,10 @@ def test_monte_carlo_redraws_drift_like_the_simulator():
     rng = np.random.default_rng(3)
     residuals, frame, track = ar1_tracks(0.0, 400, 30, seed=1)
     white = rng.standard_normal((frame.size, 4))
-    drifted = _drift_along_tracks(white, frame, track, 0.7)
+    drifted = drift_along_tracks(white, frame, track, 0.7)
     rho, _ = along_track_correlation(drifted, frame, track)
     assert rho[0] == pytest.approx(0.7, abs=0.03)
-    np.testing.assert_array_equal(_drift_along_tracks(white, frame, track, 0.0), white)
+    np.testing.assert_array_equal(drift_along_tracks(white, frame, track, 0.0), white)
     # one step by hand: a continuing track mixes, a new one is the white draw
     out = drifting_noise(np.ones((2, 4)), np.full((2, 4), 2.0), np.array([True, False]), 0.6)
     np.testing.assert_allclose(out[0], 0.6 * 2.0 + 0.8)

@@ -18,10 +18,14 @@ EXIT_FAILURES = 3
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from vislam.eval.benchmark import DEFAULT_BENCH_FRAMES
+    from vislam.eval.commands.options import (
+        add_align_argument,
+        add_filter_arguments,
+        add_model_argument,
+    )
+    from vislam.eval.drives import DEFAULT_BENCH_FRAMES
     from vislam.eval.executors import add_executor_arguments
     from vislam.eval.registry import DEFAULT_BENCH, ESTIMATOR_NAMES
-    from vislam.eval.runjob import add_align_argument, add_filter_arguments
 
     parser.add_argument("paths", nargs="*", metavar="PATH", help=".npz files or folders of them")
     parser.add_argument("--out", "-o", metavar="DIR",
@@ -46,23 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_filter_arguments(parser)
 
 
-def add_model_argument(parser: argparse.ArgumentParser) -> None:
-    """``--model identify|as-given`` (bench, score): which model the drives are run under."""
-    parser.add_argument("--model", choices=("identify", "as-given"), default="identify",
-                        help="identify: every estimator runs under the model identified from "
-                             "each drive's own data (noise, gyro bias, pairing, extrinsic; "
-                             "cached by content, see 'vislam calibrate'), and ground truth is "
-                             "converted with its extrinsic, the default; as-given: the file's "
-                             "extrinsic and the settings as given (the paper's). A [model] "
-                             "table in --config is used as it is")
-
-
 def drives_under_model(args: argparse.Namespace, sequences: list, config, smoother, model) -> list:
-    """``sequences`` (eval.benchmark.BenchSequence) under the model the options ask for: the
-    [model] table of --config (``model``, eval.runjob.model_from_args) as it is, else
+    """``sequences`` (eval.drives.BenchSequence) under the model the options ask for: the
+    [model] table of --config (``model``, eval.commands.options.model_from_args) as it is, else
     ``--model identify`` (said on stderr unless --quiet: it takes a while once per drive)
     or ``as-given``."""
-    from vislam.eval.benchmark import apply_model_to, as_given, identify_models
+    from vislam.eval.drives import apply_model_to, as_given, identify_models
     from vislam.eval.model_cache import cache_dir
 
     if model is not None:
@@ -78,19 +71,16 @@ def drives_under_model(args: argparse.Namespace, sequences: list, config, smooth
 
 def run(args: argparse.Namespace) -> int:
     from vislam.ekf.errors import InputError
-    from vislam.eval.benchmark import (
-        collect_sequences,
-        default_out_dir,
-        run_benchmark,
-    )
-    from vislam.eval.executors import check_executor, executor_settings
-    from vislam.eval.registry import DEFAULT_BENCH, estimators_from_flag
-    from vislam.eval.runjob import (
+    from vislam.eval.bench_output import default_out_dir, run_benchmark
+    from vislam.eval.commands.options import (
         environment_settings,
         filter_config_from_args,
         model_from_args,
         smoother_settings_from_args,
     )
+    from vislam.eval.drives import collect_sequences
+    from vislam.eval.executors import check_executor, executor_settings
+    from vislam.eval.registry import DEFAULT_BENCH, estimators_from_flag
 
     estimators = estimators_from_flag(args.estimators, DEFAULT_BENCH)
     config = filter_config_from_args(args)

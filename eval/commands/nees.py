@@ -30,9 +30,9 @@ def sim_depth_error(depth: float) -> str | None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from vislam.eval.benchmark import DEFAULT_NEES_FRAMES
+    from vislam.eval.commands.options import add_filter_arguments
     from vislam.eval.executors import add_executor_arguments
-    from vislam.eval.runjob import add_filter_arguments
+    from vislam.eval.montecarlo import DEFAULT_NEES_FRAMES
     from vislam.eval.simulate import DEFAULT_SIM
 
     parser.add_argument("--runs", "-n", type=int, required=True, metavar="N", help="Monte Carlo runs")
@@ -64,12 +64,16 @@ def run(args: argparse.Namespace) -> int:
     from vislam.eval import plots
     from vislam.eval.atomic import write_json
     from vislam.eval.commands.bench import EXIT_FAILURES
-    from vislam.eval.output_dir import OutputDir
-    from vislam.eval.signals import deferred
-    from vislam.eval.benchmark import monte_carlo_nees
+    from vislam.eval.commands.options import (
+        environment_settings,
+        filter_config_from_args,
+        smoother_settings_from_args,
+    )
     from vislam.eval.executors import check_executor, executor_settings
+    from vislam.eval.montecarlo import monte_carlo_nees
+    from vislam.eval.output_dir import OutputDir
     from vislam.eval.registry import estimators_from_flag
-    from vislam.eval.runjob import environment_settings, filter_config_from_args, smoother_settings_from_args
+    from vislam.eval.signals import deferred
 
     estimators = estimators_from_flag(args.estimators, NEES_DEFAULT)
     config = filter_config_from_args(args)

@@ -4,7 +4,7 @@ benchmark's per-drive plots into a folder.
 The output folder follows :mod:`eval.output_dir`: checked before the estimation starts, built
 in a hidden staging folder and moved in only when every file is written; an error or an
 interruption leaves nothing half-written, and no file vislam did not write is ever replaced.
-The plots are drawn as ``vislam bench`` draws them (:func:`eval.benchmark.sequence_figures`,
+The plots are drawn as ``vislam bench`` draws them (:func:`eval.drive_figures.sequence_figures`,
 matplotlib's Agg canvas) into the same staging folder; as in the benchmark, a plot that fails
 fails the command and nothing is written (the message says so, and ``--no-plots`` skips them).
 """
@@ -16,13 +16,24 @@ from pathlib import Path
 
 import numpy as np
 
+from vislam.ekf.estimate import Estimate
+from vislam.eval.atomic import write_json
+from vislam.eval.commands.options import (
+    add_align_argument,
+    add_filter_arguments,
+    environment_settings,
+    filter_config_from_args,
+    model_from_args,
+    smoother_settings_from_args,
+)
+from vislam.eval.export import write_kitti, write_tum
 from vislam.eval.registry import ESTIMATOR_NAMES
 
-#: What ``vislam run`` writes into ``--out`` (eval.runjob.write_run_outputs).
+#: What ``vislam run`` writes into ``--out`` (write_run_outputs).
 RUN_FILES = ("trajectory.tum", "trajectory.kitti", "map.npz", "estimate.npz", "metrics.json",
              "settings.json")
 #: The plots ``vislam run`` can write besides (those of one estimator among the benchmark's
-#: per-drive plots, eval.benchmark.sequence_figures): the top-view trajectory and the map
+#: per-drive plots, eval.drive_figures.sequence_figures): the top-view trajectory and the map
 #: (when the estimator maps landmarks) always; with ground truth, the error over distance and
 #: the pose NEES over time. vs_smoother.png needs an EKF and a smoother on the same drive, so a
 #: single estimator never draws it.
@@ -47,21 +58,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-plots", dest="plots", action="store_false",
                         help="write no plots (by default: trajectories.png, map.png and, with "
                              "ground truth, error_over_distance.png and nees.png)")
-    from vislam.eval.runjob import add_align_argument, add_filter_arguments
-
     add_align_argument(parser)
     add_filter_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from vislam.eval.benchmark import landmark_truth_beside
+    from vislam.eval.drives import landmark_truth_beside
     from vislam.eval.output_dir import OutputDir
     from vislam.eval.groundtruth import find_ground_truth
     from vislam.eval.loader import load_sequence
     from vislam.eval.registry import get_estimator
     from vislam.ekf.errors import InputError
     from vislam.ekf.model import model_sequence
-    from vislam.eval.runjob import filter_config_from_args, model_from_args, smoother_settings_from_args
 
     # Everything that can be wrong with the input is checked before anything is written.
     get_estimator(args.estimator)
@@ -95,7 +103,8 @@ def _plot_files(gt) -> tuple[str, ...]:
 def _write_plots(tmp: Path, args, seq, gt, est, landmark_truth) -> list[Path]:
     """The benchmark's per-drive plots of this one estimator into ``tmp``. A failure is the
     command's (as in ``vislam bench``): the error goes up with a note, and nothing is written."""
-    from vislam.eval.benchmark import BenchSequence, sequence_figures
+    from vislam.eval.drive_figures import sequence_figures
+    from vislam.eval.drives import BenchSequence
 
     bs = BenchSequence(name=seq.name, path=str(Path(args.file).resolve()), sequence=seq, gt=gt,
                        landmark_truth=landmark_truth)
@@ -109,15 +118,10 @@ def _write_plots(tmp: Path, args, seq, gt, est, landmark_truth) -> list[Path]:
 
 def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path, *, plots: bool = True,
                         landmark_truth: np.ndarray | None = None) -> dict:
-    from vislam.eval.runjob import (
-        RPE_DEFINITION,
-        Progress,
-        environment_settings,
-        run_estimator,
-        trajectory_scores,
-        write_run_outputs,
-    )
+    from vislam.eval.bench_scores import RPE_DEFINITION, trajectory_scores
+    from vislam.eval.progress import Progress
     from vislam.eval.signals import deferred
+    from vislam.eval.study import run_estimator
 
     with Progress(f"{args.estimator} {seq.name}", total=seq.n_frames, enabled=not args.quiet) as bar:
         job = run_estimator(seq, args.estimator, config, progress=bar, smoother=smoother)
@@ -170,3 +174,31 @@ def _summary_line(m: dict, out: str) -> str:
         f"pose NEES {fmt(m['nees_pose_mean'])}; wrote {out}"
     )
 
+
+def write_map_npz(path: Path, est: Estimate) -> None:
+    """Landmark positions (M, 3), 3x3 covariances and the source column of each track."""
+    origin = est.info.get("track_origin")
+    origin = (
+        np.asarray(origin, dtype=np.int64)
+        if origin is not None
+        else np.arange(est.landmarks.shape[0], dtype=np.int64)
+    )
+    with open(path, "wb") as fh:
+        np.savez_compressed(
+            fh,
+            landmarks=est.landmarks,
+            landmark_cov=est.landmark_cov,
+            track_origin=origin,
+            has_landmark=est.has_landmark,
+        )
+
+
+def write_run_outputs(out_dir: Path, seq, est: Estimate, metrics: dict, settings: dict) -> None:
+    """trajectory.tum, trajectory.kitti, map.npz, estimate.npz, metrics.json, settings.json."""
+    out_dir = Path(out_dir)
+    write_tum(out_dir / "trajectory.tum", est.timestamps, est.poses)
+    write_kitti(out_dir / "trajectory.kitti", est.poses)
+    write_map_npz(out_dir / "map.npz", est)
+    est.save_npz(out_dir / "estimate.npz")
+    write_json(out_dir / "metrics.json", metrics)
+    write_json(out_dir / "settings.json", settings)

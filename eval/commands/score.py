@@ -28,8 +28,11 @@ import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from vislam.eval.runjob import add_align_argument, add_filter_arguments
-    from vislam.eval.commands.bench import add_model_argument
+    from vislam.eval.commands.options import (
+        add_align_argument,
+        add_filter_arguments,
+        add_model_argument,
+    )
     from vislam.eval.score import DEFAULT_T_MAX_DIFF, FORMATS
 
     parser.add_argument("trajectory", metavar="TRAJ", help="trajectory file (tum, kitti, euroc)")
@@ -69,13 +72,14 @@ def run(args: argparse.Namespace) -> int:
     from vislam.eval.atomic import write_json, write_text
     from vislam.eval.export import read_pose_covariances
     from vislam.eval.commands.bench import drives_under_model
-    from vislam.eval.output_dir import OutputDir
-    from vislam.eval.runjob import (
+    from vislam.eval.commands.options import (
         environment_settings,
         filter_config_from_args,
         model_from_args,
         smoother_settings_from_args,
     )
+    from vislam.eval.output_dir import OutputDir
+    from vislam.eval.readings import score_markdown
     from vislam.eval.score import (
         SCORE_FILES,
         associate,
@@ -83,7 +87,6 @@ def run(args: argparse.Namespace) -> int:
         load_drive,
         read_trajectory,
         score,
-        score_markdown,
     )
     from vislam.eval.signals import deferred
 

@@ -1,7 +1,7 @@
 """The Monte Carlo study behind the consistency and agreement tests, made with the public pytest
 helpers (:func:`vislam.testing.monte_carlo`): one simulated drive, its velocity and pixel noise
-redrawn per run (``eval.benchmark.redraw_noise``), every estimator on every run
-(``eval.benchmark.run_jobs``, 2 worker processes, the smoother starting from the invariant EKF).
+redrawn per run (``eval.montecarlo.redraw_noise``), every estimator on every run
+(``eval.study.run_jobs``, 2 worker processes, the smoother starting from the invariant EKF).
 The study keeps pose NEES against truth, landmark NEES per source track, and each EKF's pose NEES
 against the smoother of the same run (normalised by the EKF's covariance)."""
 

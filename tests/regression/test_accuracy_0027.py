@@ -2,7 +2,7 @@
 estimator on the SE(3)-aligned ATE (m) and on the KITTI drift t_rel (%, 100-800 m segments),
 set about 10 % above what the code measured when the bound was set, so a regression fails.
 
-Every estimator runs once (:func:`vislam.testing.run_drive`: ``eval.benchmark.run_jobs``, 2 worker
+Every estimator runs once (:func:`vislam.testing.run_drive`: ``eval.study.run_jobs``, 2 worker
 processes, the smoother starting from the invariant EKF as in ``vislam bench``), with the default
 FilterConfig; the bounds are checked by :func:`vislam.testing.assert_accuracy`."""
 
@@ -33,7 +33,7 @@ BOUNDS = {n: (round(a * MARGIN + 0.005, 2), round(t * MARGIN + 0.005, 2)) for n,
 @pytest.fixture(scope="module")
 def study_0027(kitti_data_dir, regression_config):
     """Every estimator on 0027 (:func:`vislam.testing.run_drive`), scored against ground truth."""
-    from vislam.eval.benchmark import load_bench_sequence
+    from vislam.eval.drives import load_bench_sequence
     from vislam.testing import run_drive
 
     path = kitti_data_dir / f"{DRIVE}.npz"

@@ -56,7 +56,7 @@ TARGETS_2019 = {name: {"ate_aligned_max": 0.78, "t_rel_max": 0.80}
 def _bench(path, regression_config):
     """Every estimator on ``path`` under the model identified from its data, as ``vislam bench``
     does (:func:`vislam.testing.run_drive` with ``model="identified"``)."""
-    from vislam.eval.benchmark import load_bench_sequence
+    from vislam.eval.drives import load_bench_sequence
     from vislam.testing import run_drive
 
     if not path.is_file():

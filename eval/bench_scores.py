@@ -1,0 +1,153 @@
+"""The figures of ``results.json``: each estimator on a drive scored against ground truth and
+against the smoother's estimate on the same data.
+
+``results.json`` (schema 1)::
+
+    {"schema": 1, "rpe_definition": ..., "reference": ..., "alignment": "se3",
+     "alignment_definition": ..., "sequences": [
+        {"name", "path", "frames", "has_ground_truth", "has_landmark_truth",
+         "estimators": [
+            {"name", "error", "runtime_s", "frames_per_s", "landmarks",
+             "ate_m", "ate_aligned_m", "rpe_trans_pct", "rpe_rot_deg_per_100m",
+             "nees_pose_mean", "map_rmse_m", "nees_landmark_mean",
+             "vs_smoother": {"ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean",
+                             "inside_95_fraction"}}, ...]}, ...]}
+
+Every key is always present; a figure that cannot be computed is null. ``alignment`` is the
+alignment before every ``ate_aligned_m`` (against ground truth and against the smoother): one
+of :data:`eval.metrics.ALIGN_MODES` (``--align``; "se3" by default, and in files written before
+the key existed), ``alignment_definition`` says it in words. ``map_rmse_m`` and
+``nees_landmark_mean`` compare with true landmarks (simulations only); ``vs_smoother`` compares
+with the smoother's estimate on the same sequence (null for the smoothers themselves).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vislam.ekf.estimate import Estimate
+from vislam.eval.consistency import (
+    ate_or_none,
+    landmark_nees,
+    landmark_rmse,
+    pose_nees,
+    versus_smoother,
+)
+from vislam.eval.drives import BenchSequence
+from vislam.eval.metrics import check_align_mode, kitti_drift
+from vislam.eval.registry import SMOOTHERS
+from vislam.eval.study import JobFailure, JobResult
+
+SCHEMA = 1
+ESTIMATOR_KEYS = (
+    "name", "error", "runtime_s", "frames_per_s", "landmarks", "ate_m", "ate_aligned_m",
+    "rpe_trans_pct", "rpe_rot_deg_per_100m", "nees_pose_mean", "map_rmse_m",
+    "nees_landmark_mean", "vs_smoother",
+)
+VS_SMOOTHER_KEYS = ("ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean", "inside_95_fraction")
+SEQUENCE_KEYS = ("name", "path", "frames", "has_ground_truth", "has_landmark_truth", "model",
+                 "estimators")
+
+#: What rpe_trans_pct / rpe_rot_deg_per_100m mean in every output.
+RPE_DEFINITION = (
+    "KITTI odometry drift: mean translation error (%) and rotation error (deg/100 m) over all "
+    "path segments of 100, 200, ..., 800 m (eval.metrics.kitti_drift); null when the "
+    "trajectory is shorter than the shortest segment"
+)
+
+
+def trajectory_scores(est: Estimate, gt, align: str = "se3") -> dict:
+    """ATE (raw and aligned by ``align``, one of eval.metrics.ALIGN_MODES, recorded as
+    ``alignment``), KITTI drift and mean pose NEES of ``est`` against ground truth ``gt``
+    (frames, poses) on the frames both have; every figure None without ``gt``. An unknown
+    ``align`` is an InputError."""
+    check_align_mode(align)
+    out = {
+        "ate_m": None,
+        "ate_aligned_m": None,
+        "rpe_trans_pct": None,
+        "rpe_rot_deg_per_100m": None,
+        "nees_pose_mean": None,
+        "gt_frames": 0,
+        "alignment": align,
+    }
+    if gt is None:
+        return out
+    frames = np.asarray(gt.frames, dtype=np.int64)
+    keep = (frames >= 0) & (frames < est.n_frames)
+    frames, gt_poses = frames[keep], np.asarray(gt.poses)[keep]
+    if frames.size < 2:
+        return out
+    est_poses = est.poses[frames]
+    out["gt_frames"] = int(frames.size)
+    out["ate_m"] = ate_or_none(est_poses, gt_poses, align=None)
+    out["ate_aligned_m"] = ate_or_none(est_poses, gt_poses, align=align)
+    drift = kitti_drift(est_poses, gt_poses)
+    if drift:
+        out["rpe_trans_pct"] = _num(drift.get("t_rel_pct"))
+        out["rpe_rot_deg_per_100m"] = _num(drift.get("r_rel_deg_per_100m"))
+    nees = pose_nees(est, frames, gt_poses)
+    finite = np.isfinite(nees)
+    if np.any(finite):
+        out["nees_pose_mean"] = float(nees[finite].mean())
+    return out
+
+
+def _num(x) -> float | None:
+    if x is None:
+        return None
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if np.isfinite(x) else None
+
+
+def reference_smoother(ests: dict[str, Estimate]) -> str | None:
+    """The smoother the EKFs are compared with: the batch one if it ran, else iSAM2."""
+    return next((n for n in SMOOTHERS if n in ests), None)
+
+
+def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict,
+                   align: str = "se3") -> dict:
+    """The results.json entry of one sequence (see the module docstring); ``align`` the
+    alignment before every aligned ATE (eval.metrics.ALIGN_MODES); ``outcomes``
+    {estimator: JobResult or JobFailure}."""
+    ests = {n: o.estimate for n, o in outcomes.items() if isinstance(o, JobResult)}
+    ref = reference_smoother(ests)
+    rows = []
+    for name in estimators:
+        o = outcomes.get(name)
+        row = {k: None for k in ESTIMATOR_KEYS}
+        row["name"] = name
+        row["vs_smoother"] = {k: None for k in VS_SMOOTHER_KEYS}
+        if isinstance(o, JobFailure) or o is None:
+            row["error"] = o.error if o is not None else "not run"
+            rows.append(row)
+            continue
+        est = o.estimate
+        row["runtime_s"] = o.wall_s
+        row["frames_per_s"] = est.n_frames / o.wall_s if o.wall_s > 0 else None
+        row["landmarks"] = int(np.count_nonzero(est.has_landmark))
+        scores = trajectory_scores(est, bs.gt, align=align)
+        for k in ("ate_m", "ate_aligned_m", "rpe_trans_pct", "rpe_rot_deg_per_100m", "nees_pose_mean"):
+            row[k] = scores[k]
+        if bs.landmark_truth is not None and row["landmarks"]:
+            row["map_rmse_m"] = landmark_rmse(est, bs.landmark_truth)
+            nees = landmark_nees(est, bs.landmark_truth)
+            if np.any(np.isfinite(nees)):
+                row["nees_landmark_mean"] = float(np.nanmean(nees))
+        if ref is not None and name not in SMOOTHERS:
+            row["vs_smoother"] = versus_smoother(est, ests[ref], align=align)
+        rows.append(row)
+    return {
+        "name": bs.name,
+        "path": bs.path,
+        "frames": bs.sequence.n_frames,
+        "has_ground_truth": bs.gt is not None,
+        "has_landmark_truth": bs.landmark_truth is not None,
+        "model": bs.model,
+        "reference_smoother": ref,
+        "estimators": rows,
+    }
+

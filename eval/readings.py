@@ -1,0 +1,243 @@
+"""The results in words: ``summary.md`` of `vislam bench` (per drive the model line, readings in
+a few sentences and the table of figures) and ``score.md`` of `vislam score`; report.html shows
+the same text (:mod:`eval.report`).
+"""
+
+from __future__ import annotations
+
+import math
+
+from vislam.ekf.model import long_run_pixel_sigma
+from vislam.eval.consistency import POSE_NEES_BAND, reference_honesty
+from vislam.eval.metrics import ALIGN_DESCRIPTIONS
+
+
+def format_figure(x, digits=2) -> str:
+    """A table cell: "–" for no value; floats fixed-point, or as 2.0e10 / 3.5e-05 when that
+    would print a long number (at least 1e5) or only zeros (below 10^-digits)."""
+    if x is None:
+        return "–"
+    if isinstance(x, float):
+        if x != 0 and math.isfinite(x) and not 10.0**-digits <= abs(x) < 1e5:
+            mantissa, exponent = f"{x:.1e}".split("e")
+            return f"{mantissa}e{int(exponent)}"
+        return f"{x:.{digits}f}"
+    return str(x)
+
+
+#: The columns of a drive's table in summary.md: (header, key in the row or in its
+#: "vs_smoother" part, digits). A column with no value on any row of the drive is left out.
+SUMMARY_COLUMNS = (
+    ("time (s)", "runtime_s", 2), ("frames/s", "frames_per_s", 1), ("ATE (m)", "ate_m", 2),
+    ("ATE al. (m)", "ate_aligned_m", 2), ("t_rel (%)", "rpe_trans_pct", 2),
+    ("r_rel (°/100m)", "rpe_rot_deg_per_100m", 2), ("NEES", "nees_pose_mean", 2),
+    ("map RMSE (m)", "map_rmse_m", 2), ("lm NEES", "nees_landmark_mean", 2),
+    ("vs sm. ATE al. (m)", "vs_smoother.ate_aligned_m", 2), ("vs sm. map (m)", "vs_smoother.map_rmse_m", 2),
+    ("vs sm. NEES", "vs_smoother.nees_pose_mean", 2), ("vs sm. in 95%", "vs_smoother.inside_95_fraction", 2),
+)
+
+
+def cell(row: dict, key: str):
+    """The value of column ``key`` (:data:`SUMMARY_COLUMNS`) in an estimator's row."""
+    if key.startswith("vs_smoother."):
+        return (row.get("vs_smoother") or {}).get(key.split(".", 1)[1])
+    return row.get(key)
+
+
+def summary_markdown(results: dict) -> str:
+    """The results as Markdown: per sequence the model line, readings in words
+    (:func:`readings`), and a table of the columns that have a value on some row."""
+    lines = ["# vislam benchmark", ""]
+    lines.append(f"RPE: {results['rpe_definition']}.")
+    align = _alignment_words(results)
+    lines.append(f"ATE al.: the ATE after {align}.")
+    lines.append("vs smoother: the estimator against the smoother's estimate on the same data "
+                 f"(ATE after {align}; map RMSE over tracks both estimated; pose NEES of "
+                 "the difference under the estimator's own covariance, and the share of steps "
+                 "inside chi2.ppf(0.95, 6)).")
+    lines.append("")
+    for s in results["sequences"]:
+        gt = "ground truth" if s["has_ground_truth"] else "no ground truth"
+        lines.append(f"## {s['name']} ({s['frames']} frames, {gt})")
+        lines.append("")
+        said_model = model_line(s.get("model"))
+        if said_model:
+            lines += [said_model, ""]
+        said = readings(s)
+        if said:
+            lines += [f"- {sentence}" for sentence in said] + [""]
+        header, rows = sequence_table(s)
+        lines.append("| " + " | ".join(header) + " |")
+        lines.append("|" + "|".join(["---"] * len(header)) + "|")
+        lines += ["| " + " | ".join(cells).rstrip() + " |" for cells in rows]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _alignment_words(results: dict) -> str:
+    """The alignment of the results' aligned ATEs in words (SE(3) when not recorded)."""
+    mode = results.get("alignment") or "se3"
+    return ALIGN_DESCRIPTIONS.get(mode, f"{mode} alignment")
+
+
+def sequence_table(s: dict) -> tuple[list[str], list[list[str]]]:
+    """A drive's table as text cells: the header and one row per estimator, with the columns
+    of :data:`SUMMARY_COLUMNS` that have a value on some row (a failed estimator: its error)."""
+    ok = [r for r in s["estimators"] if not r["error"]]
+    columns = [c for c in SUMMARY_COLUMNS if any(cell(r, c[1]) is not None for r in ok)]
+    rows = []
+    for r in s["estimators"]:
+        if r["error"]:
+            rows.append([r["name"], f"failed: {r['error']}"] + [""] * max(len(columns) - 1, 0))
+        else:
+            rows.append([r["name"]] + [format_figure(cell(r, key), digits) for _, key, digits in columns])
+    return ["estimator"] + [c[0] for c in columns], rows
+
+
+def _names(rows: list[tuple[str, float]]) -> str:
+    return ", ".join(f"{name} ({format_figure(value, 1)})" for name, value in rows)
+
+
+def readings(s: dict) -> list[str]:
+    """A drive's results in a few sentences: the most accurate estimator, which are consistent
+    and which over- or underconfident against ground truth (mean pose NEES against the band of
+    one 6-dof NEES, :data:`eval.consistency.POSE_NEES_BAND`) and against the smoother, and the
+    warning when the reference itself is not consistent (:func:`eval.consistency.reference_honesty`)."""
+    ok = [r for r in s["estimators"] if not r["error"]]
+    out = []
+    failed = [r["name"] for r in s["estimators"] if r["error"]]
+    if failed:
+        out.append(f"Failed: {', '.join(failed)} (see results.json).")
+    scored = [r for r in ok if r.get("ate_aligned_m") is not None]
+    if scored:
+        best = min(scored, key=lambda r: r["ate_aligned_m"])
+        drift = "" if best.get("rpe_trans_pct") is None else f", t_rel {format_figure(best['rpe_trans_pct'])} %"
+        sentence = f"Most accurate: {best['name']} (aligned ATE {format_figure(best['ate_aligned_m'])} m{drift})"
+        ekfs = [r for r in scored if r["name"].startswith("ekf-")]
+        if ekfs and not best["name"].startswith("ekf-"):
+            e = min(ekfs, key=lambda r: r["ate_aligned_m"])
+            sentence += f"; the best EKF is {e['name']} ({format_figure(e['ate_aligned_m'])} m)"
+        out.append(sentence + ".")
+    else:
+        near = [r for r in ok if cell(r, "vs_smoother.ate_aligned_m") is not None]
+        if near:
+            e = min(near, key=lambda r: cell(r, "vs_smoother.ate_aligned_m"))
+            out.append(f"No ground truth: the estimator closest to the smoother is {e['name']} "
+                       f"(aligned ATE against it {format_figure(cell(e, 'vs_smoother.ate_aligned_m'))} m).")
+    lo, hi = POSE_NEES_BAND
+    for what, key in (("against ground truth", "nees_pose_mean"),
+                      ("against the smoother", "vs_smoother.nees_pose_mean")):
+        rows = [(r["name"], cell(r, key)) for r in ok if cell(r, key) is not None]
+        if not rows:
+            continue
+        inside = [x for x in rows if lo <= x[1] <= hi]
+        above = [x for x in rows if x[1] > hi]
+        below = [x for x in rows if x[1] < lo]
+        parts = []
+        if inside:
+            parts.append(f"consistent: {_names(inside)}")
+        if above:
+            parts.append(f"overconfident: {_names(above)}")
+        if below:
+            parts.append(f"underconfident: {_names(below)}")
+        out.append(f"Pose NEES {what} (band [{lo:.2f}, {hi:.2f}] for the mean of one drive): "
+                   + "; ".join(parts) + ".")
+    out += [x for x in _reference_honesty(s) if x]
+    return out
+
+
+def _reference_honesty(s: dict) -> list[str]:
+    """A sentence when the reference smoother's pose NEES against ground truth is outside its
+    band (eval.consistency.reference_honesty): its covariance is then not a fair yardstick for
+    the EKFs' (vs sm. NEES)."""
+    ref = s.get("reference_smoother")
+    row = next((r for r in s["estimators"] if r["name"] == ref and not r["error"]), None)
+    sentence = None if row is None else reference_honesty(ref, row["nees_pose_mean"])
+    return [] if sentence is None else [f"{sentence} (the vs sm. NEES columns).", ""]
+
+
+def model_line(model: dict | None) -> str:
+    """One line on the model the estimators ran under (results.json's ``model``)."""
+    if not model:
+        return ""
+    mode = model.get("mode")
+    if mode == "as-given":
+        failed = model.get("identification_failed")
+        why = f" (identification failed: {failed})" if failed else ""
+        return f"Model: the file's extrinsic and the settings as given{why}."
+    m = model.get("model") or {}
+    v = ", ".join(f"{x:.3g}" for x in m.get("velocity_sigma") or [])
+    g = ", ".join(f"{x:.3g}" for x in m.get("gyro_sigma") or [])
+    bias = "no gyro bias" if m.get("gyro_bias") is None else "gyro bias " + ", ".join(
+        f"{x:.2g}" for x in m["gyro_bias"])
+    how = {"identified": "identified from the data" + (" (cached)" if model.get("cached") else ""),
+           "config": "from " + str(model.get("source", "--config"))}.get(mode, str(mode))
+    radial = "" if m.get("radial_k1") is None else f", radial lens term k1 {m['radial_k1']:.3g}"
+    tau = m.get("pixel_correlation_time")
+    correlated = "" if tau is None else (
+        f" correlated along tracks over {tau:.3g} frames (the estimators use "
+        f"{long_run_pixel_sigma(m.get('pixel_sigma', float('nan')), tau):.3g} px)")
+    slow = {what: times for what, times in (("velocity", m.get("velocity_correlation_time")),
+                                            ("gyro", m.get("gyro_correlation_time"))) if times}
+    drifting = "" if not slow else (
+        f", {' and '.join(slow)} errors correlated in time (long-run / white variance "
+        + "; ".join(f"{what} {', '.join(f'{x:.3g}' for x in times)}" for what, times in slow.items())
+        + ": the estimators use the long-run sigmas)")
+    text = (f"Model {how}: velocity sigma {v} m/s, gyro sigma {g} rad/s{drifting}, pixel sigma "
+            f"{m.get('pixel_sigma', float('nan')):.3g} px{correlated}, pairing "
+            f"{m.get('velocity_pairing')}, "
+            f"{bias}{radial}")
+    test = (model.get("identification") or {}).get("extrinsic_test") or {}
+    if test:
+        against = (f" against {test['threshold']:.3g}, {test.get('criterion', 'chi-square')}"
+                   if "threshold" in test else "")
+        text += (f"; extrinsic: {test['decision']} (Wald statistic {test['statistic']:.3g} on "
+                 f"{test['dof']} dof{against})")
+    arm = model.get("lever_arm") or {}
+    if arm.get("ground_truth") is not None:
+        model_p, truth_p, truth_s = (" ".join(f"{x:.2f}" for x in arm[k])
+                                     for k in ("model", "ground_truth", "ground_truth_sigma"))
+        text += (f"; lever arm x y z {model_p} m, the ground truth's {truth_p} +- {truth_s} m "
+                 "(from the velocities against the true camera motion, no vision)")
+    return text + "."
+
+
+def score_markdown(result: dict) -> str:
+    """The score as Markdown: what was scored and how, then the benchmark's summary of the
+    drive (:func:`summary_markdown`: readings and the table of figures); ``result`` the
+    score.json content (:func:`eval.score.score`)."""
+    traj, a, cov = result["trajectory"], result["association"], result["covariance"]
+    if a["by"] == "index":
+        how = "by index (no times in the file)"
+    else:
+        how = (f"by time (|dt| <= {a['t_max_diff_s']:g} s after --t-offset {a['t_offset_s']:g} s; "
+               f"largest |dt| {a['max_abs_diff_s']:.3g} s)")
+    lines = [
+        "# vislam score", "",
+        (f"Trajectory: {traj['path']} ({traj['format']}, {traj['poses']} poses); data: "
+         f"{result['data']['path'] or result['data']['name']} ({result['data']['frames']} frames)."),
+        f"Association: {a['associated_frames']} of {a['trajectory_poses']} poses on frames "
+        f"{a['first_frame']}-{a['last_frame']} {how}; only these frames are scored"
+        + (f" ({a['unmatched_poses']} poses matched no frame)" if a["unmatched_poses"] else "")
+        + (f" ({a['duplicate_poses']} poses on a frame taken by a nearer one)"
+           if a["duplicate_poses"] else "") + ".",
+    ]
+    if cov is None:
+        lines.append(f"Covariance: none; {result['nees']}.")
+    else:
+        lines.append(f"Covariance: {cov['path']} ({cov['kind']}), for "
+                     f"{cov['frames_with_covariance']} of the {a['associated_frames']} scored frames.")
+    ref = result["reference"]
+    if ref is None:
+        lines.append("Reference: not run (--no-reference); the vs-smoother figures are null.")
+    else:
+        lines.append(f"Reference: the batch smoother as vislam bench runs it "
+                     f"({' then '.join(ref['estimators_run'])}); its own row is scored on the "
+                     "same frames.")
+    body = summary_markdown({"rpe_definition": result["rpe_definition"],
+                             "alignment": result["alignment"],
+                             "sequences": [result["sequence"]]})
+    body_lines = body.splitlines()
+    if body_lines and body_lines[0].startswith("# "):
+        body_lines = body_lines[1:]
+    return "\n".join(lines + body_lines).rstrip() + "\n"
