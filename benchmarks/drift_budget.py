@@ -33,7 +33,7 @@ import numpy as np
 from vislam.ekf.cleaning import clean_sequence
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.geometry import se3_inv, se3_log
-from vislam.eval.benchmark import identify_models, load_bench_sequence
+from vislam.eval.drives import identify_models, load_bench_sequence
 from vislam.eval.consistency import pose_nees
 from vislam.eval.datasets import drive_path
 from vislam.eval.metrics import interval_errors, pose_errors, turn_scale_error

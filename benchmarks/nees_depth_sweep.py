@@ -25,7 +25,7 @@ from vislam.ekf.config import LANDMARK_PARAMETERISATIONS, FilterConfig
 from vislam.ekf.errors import InputError
 from vislam.eval import plots
 from vislam.eval.atomic import write_json
-from vislam.eval.benchmark import DEFAULT_NEES_FRAMES, monte_carlo_nees, nees_sim_config
+from vislam.eval.montecarlo import DEFAULT_NEES_FRAMES, monte_carlo_nees, nees_sim_config
 from vislam.eval.commands.nees import sim_depth_error
 from vislam.eval.consistency import LANDMARK_DOF, POSE_DOF, chi2_bounds
 from vislam.eval.output_dir import OutputDir

@@ -90,7 +90,7 @@ def replay_kernels(sizes: dict, seed: int = 0) -> tuple[float, float]:
 
 def time_estimator(name: str, seq, config, smoother, initial, repeat: int):
     """(best wall s, compiled-kernel s, a note, the estimate) of ``name`` on ``seq``."""
-    from vislam.eval.runjob import run_estimator
+    from vislam.eval.study import run_estimator
 
     best, est, sizes = np.inf, None, None
     for _ in range(repeat):
@@ -114,7 +114,7 @@ def time_estimator(name: str, seq, config, smoother, initial, repeat: int):
 
 def main(argv=None) -> int:
     from vislam.ekf.config import FilterConfig
-    from vislam.eval.benchmark import monte_carlo_drives, nees_sim_config
+    from vislam.eval.montecarlo import monte_carlo_drives, nees_sim_config
     from vislam.eval.commands.nees import NEES_DEFAULT
     from vislam.graph.settings import SmootherSettings
 

@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     from vislam.ekf.config import FilterConfig
-    from vislam.eval.benchmark import identify_models, load_bench_sequence, simulated_sequence
+    from vislam.eval.drives import identify_models, load_bench_sequence, simulated_sequence
     from vislam.graph.settings import SmootherSettings
 
     drives = ([load_bench_sequence(p) for p in args.files] if args.files

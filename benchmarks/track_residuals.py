@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from vislam.ekf.config import FilterConfig
-from vislam.eval.benchmark import identify_models, load_bench_sequence
+from vislam.eval.drives import identify_models, load_bench_sequence
 from vislam.eval.datasets import drive_path
 from vislam.graph.factors import stereo_residuals
 from vislam.graph.settings import SmootherSettings

@@ -27,7 +27,7 @@ wherever it comes from (the constructor, ``replace``, a TOML file, a flag):
 
 Errors are :class:`ekf.errors.InputError` naming the key and, for a file, the file and table
 (``s.toml [filter]: setting 'pixel_sigma' must be ..., got -1``); flags are named by
-eval.runjob (``--pixel-sigma: must be ..., got -1``).
+eval.commands.options (``--pixel-sigma: must be ..., got -1``).
 """
 
 from __future__ import annotations

@@ -110,7 +110,7 @@ def load_bench_sequence(path: Path) -> BenchSequence:
 def landmark_truth_beside(path: Path, seq: Sequence) -> np.ndarray | None:
     """A simulated drive's true landmarks (``<stem>_landmarks.npz`` beside the data file, read as
     carefully as the drive), one row per track of ``seq``; None where there is no such file."""
-    from vislam.eval.loader import read_npz
+    from vislam.eval.safe_reading import read_npz
 
     path = Path(path)
     lm_file = path.with_name(f"{path.stem}_landmarks.npz")

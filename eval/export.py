@@ -182,7 +182,7 @@ _EUROC_COLUMNS = "timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z"
 def _text_lines(path: str | os.PathLike, what: str, delimiter: str | None = None):
     """(line number, fields) of every line of the text file ``path`` that is neither blank nor
     a ``#`` comment; fields split at ``delimiter`` (whitespace when None) and stripped."""
-    from vislam.eval.loader import read_text
+    from vislam.eval.safe_reading import read_text
 
     path = Path(path)
     text = read_text(path, what, MAX_TEXT_BYTES)
@@ -428,7 +428,7 @@ def check_covariances(path, cov: np.ndarray, rows) -> None:
 
 
 def _covariances_npz(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    from vislam.eval.loader import read_npz
+    from vislam.eval.safe_reading import read_npz
 
     d = read_npz(path, ("pose_cov", "timestamps"))
     missing = [k for k in ("pose_cov", "timestamps") if k not in d]
@@ -451,7 +451,7 @@ def _covariances_npz(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _covariances_npy(path: Path) -> np.ndarray:
-    from vislam.eval.loader import check_regular_file, max_array_bytes
+    from vislam.eval.safe_reading import check_regular_file, max_array_bytes
 
     check_regular_file(path, ".npy file")
     limit = max_array_bytes(path)

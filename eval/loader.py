@@ -82,9 +82,6 @@ from vislam.eval.drive_keys import (
 )
 from vislam.eval.safe_reading import read_npz
 
-# Re-exported for eval/export.py and eval/benchmark.py, which import them from here; their
-# home is eval.safe_reading.
-from vislam.eval.safe_reading import check_regular_file, max_array_bytes, read_text  # noqa: E402,F401
 
 
 def load_sequence(path: str | os.PathLike, clean: bool = False) -> Sequence:

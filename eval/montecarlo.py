@@ -29,7 +29,9 @@ from vislam.eval.consistency import (
     pose_nees,
 )
 from vislam.eval.registry import display_name
-from vislam.eval.simulate import _SIM_UPPER_BOUNDS, DEFAULT_SIM, SimConfig, drifting_noise, simulate
+from vislam.eval.sim_config import SIM_UPPER_BOUNDS
+from vislam.eval.sim_drawing import drifting_noise
+from vislam.eval.simulate import DEFAULT_SIM, SimConfig, simulate
 from vislam.eval.study import JobFailure, run_groups
 from vislam.graph.settings import SmootherSettings
 
@@ -127,7 +129,7 @@ def nees_sim_config(seed: int, frames: int | None = None, max_depth: float | Non
     probe = dataclasses.replace(config, n_frames=DENSITY_PROBE_FRAMES, noise_free=True)
     wanted = simulate(probe).sequence.obs.frame_index.size
     seen = simulate(dataclasses.replace(probe, max_depth=float(max_depth))).sequence.obs.frame_index.size
-    top = _SIM_UPPER_BOUNDS["landmark_density"]
+    top = SIM_UPPER_BOUNDS["landmark_density"]
     density = min(config.landmark_density * wanted / seen, top) if seen else top
     return dataclasses.replace(config, max_depth=float(max_depth), landmark_density=density)
 

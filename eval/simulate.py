@@ -104,16 +104,12 @@ from vislam.eval.sim_drawing import (
     velocity_samples,
 )
 
-# Re-exported for modules and tests outside this split (eval/benchmark.py, tests of other
-# parts) that import them from here; their homes are eval.sim_drawing and eval.sim_files.
+# The simulator's API in one place: writing a drive and the AR(1) drift are part of it (their
+# homes are eval.sim_files and eval.sim_drawing).
 from vislam.eval.sim_drawing import drifting_noise  # noqa: E402,F401
 from vislam.eval.sim_files import write_simulation  # noqa: E402,F401
 
 log = logging.getLogger(__name__)
-
-#: Kept for eval/benchmark.py until its split imports SIM_UPPER_BOUNDS from eval.sim_config.
-_SIM_UPPER_BOUNDS = SIM_UPPER_BOUNDS
-
 
 @dataclass
 class SimResult:

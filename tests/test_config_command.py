@@ -15,7 +15,7 @@ from vislam.eval.config_reference import (
     model_settings,
     smoother_settings,
 )
-from vislam.eval.runjob import (
+from vislam.eval.commands.options import (
     filter_config_from_args,
     model_from_args,
     smoother_settings_from_args,

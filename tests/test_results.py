@@ -169,7 +169,7 @@ def test_damaged_folder_is_an_input_error_naming_file_and_key(case, tmp_path, ca
 
 
 def test_schema_is_the_one_bench_writes():
-    from vislam.eval.benchmark import SCHEMA
+    from vislam.eval.bench_scores import SCHEMA
 
     assert BENCH_SCHEMA == SCHEMA
 

@@ -36,7 +36,7 @@ import numpy as np
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from vislam.eval.runjob import add_filter_arguments
+    from vislam.eval.commands.options import add_filter_arguments
 
     parser.add_argument("file", metavar="FILE.npz", help="the drive (.npz data file)")
     parser.add_argument("--out", "-o", metavar="MODEL.toml",
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from vislam.ekf.errors import InputError
     from vislam.eval.atomic import write_text
     from vislam.eval.loader import load_sequence
-    from vislam.eval.runjob import filter_config_from_args, smoother_settings_from_args
+    from vislam.eval.commands.options import filter_config_from_args, smoother_settings_from_args
     from vislam.graph.identification import identify_model
 
     config = filter_config_from_args(args)

@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--stretch", metavar="S", default=None,
         help=f"--check: length of a stretch in seconds (default {CHECK_STRETCH_S:g})",
     )
-    from vislam.eval.runjob import add_filter_arguments
+    from vislam.eval.commands.options import add_filter_arguments
 
     before = {a.dest for a in parser._actions}
     add_filter_arguments(parser)
@@ -172,7 +172,7 @@ def _check_inputs(args: argparse.Namespace):
     """``--check``'s settings, every one checked before anything is printed:
     ``(config, smoother settings, model or None, stretch_s)``; InputError otherwise."""
     from vislam.ekf.errors import InputError
-    from vislam.eval.runjob import (
+    from vislam.eval.commands.options import (
         filter_config_from_args,
         model_from_args,
         smoother_settings_from_args,
