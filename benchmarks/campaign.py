@@ -13,7 +13,8 @@ reckoning's and the smoother's mean pose NEES inside the band bench reports.
 Prints one row per drive (seed, faults, observations per frame, each estimator's aligned ATE
 and mean pose NEES, the worst ATE ratio, pass/fail of each assertion), the pass rate of each
 assertion, and the worst cases by ATE ratio and by NEES; writes ``campaign.json`` into
-``--out`` (default: the current folder). The drives run in ``--jobs`` worker processes; the
+``--out`` (default: the current folder), rewritten after every drive (``complete`` false until
+the last), so that a campaign stopped early keeps the drives it finished. The drives run in ``--jobs`` worker processes; the
 figures do not depend on how many. Identified models go to a fresh temporary cache unless
 ``--cache`` names one, so that every figure is the code's as it is now.
 """
@@ -105,7 +106,15 @@ def to_json(o) -> dict:
         "ok": o.ok,
         "model": o.model,
         "wall_s": o.wall_s,
+        "cpu_s": o.cpu_s if math.isfinite(o.cpu_s) else None,
     }
+
+
+def write_json(path: Path, doc: dict) -> None:
+    """``doc`` as JSON at ``path``, replaced whole (never half-written)."""
+    tmp_path = path.with_suffix(".json.tmp")
+    tmp_path.write_text(json.dumps(doc, indent=1))
+    tmp_path.replace(path)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -140,8 +149,18 @@ def main(argv: list[str] | None = None) -> int:
           f"[{POSE_NEES_BAND[0]:.2f}, {POSE_NEES_BAND[1]:.2f}]; ratio = worst SLAM ATE / dead "
           "reckoning's")
     print(header())
+    path = out_dir / "campaign.json"
+    doc = {"schema": 1, "frames": frames, "first_seed": args.first_seed, "drives": 0,
+           "nees_band": list(POSE_NEES_BAND), "complete": False, "outcomes": []}
+
+    def done(o) -> None:  # one row, and campaign.json so far: a stopped campaign keeps its drives
+        print(row(o), flush=True)
+        doc["outcomes"].append(to_json(o))
+        doc["drives"] = len(doc["outcomes"])
+        write_json(path, doc)
+
     t0 = time.perf_counter()
-    outcomes = run_campaign(seeds, frames, args.jobs, on_done=lambda o: print(row(o), flush=True))
+    outcomes = run_campaign(seeds, frames, args.jobs, on_done=done)
     wall = time.perf_counter() - t0
     if tmp is not None:
         tmp.cleanup()
@@ -153,29 +172,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pass rate, {words}: {summary.passed[name]}/{summary.drives} "
               f"({100 * summary.rate(name):.1f} %)")
     walls = [o.wall_s for o in outcomes]
-    print(f"wall time {wall:.0f} s; per drive {min(walls):.1f}-{max(walls):.1f} s, mean "
-          f"{sum(walls) / len(walls):.1f} s (in its worker)")
+    cpus = [o.cpu_s for o in outcomes]
+    print(f"wall time {wall:.0f} s; per drive in its worker: wall {min(walls):.1f}-"
+          f"{max(walls):.1f} s (mean {sum(walls) / len(walls):.1f}), CPU {min(cpus):.1f}-"
+          f"{max(cpus):.1f} s (mean {sum(cpus) / len(cpus):.1f})")
     for title, key in (("by ATE ratio", lambda o: o.ate_ratio),
                        ("by NEES (factor outside the band)", lambda o: o.worst_nees)):
         print(f"\nworst {WORST} {title}:")
         print(header())
         for o in sorted(outcomes, key=key, reverse=True)[:WORST]:
             print(row(o))
-    doc = {
-        "schema": 1,
-        "frames": frames,
-        "first_seed": args.first_seed,
-        "drives": len(outcomes),
-        "nees_band": list(POSE_NEES_BAND),
-        "pass": summary.passed,
-        "wall_s": wall,
-        "outcomes": [to_json(o) for o in outcomes],
-    }
-    path = out_dir / "campaign.json"
-    text = json.dumps(doc, indent=1)
-    tmp_path = path.with_suffix(".json.tmp")
-    tmp_path.write_text(text)
-    tmp_path.replace(path)
+    doc.update({"complete": True, "pass": summary.passed, "wall_s": wall})
+    write_json(path, doc)
     print(f"\nwrote {path}")
     return 0
 
