@@ -14,7 +14,8 @@ overconfident).
 The drives that fail on the code this file was written against are marked
 ``xfail(strict=True)`` with what they showed then: once the identification (issue 34, items
 1-4) makes one pass, its mark must go (strict: an unexpected pass fails). The 31 drives run in two
-worker processes, models identified into an empty cache: about 4 minutes on 2 free cores
+worker processes, models identified into an empty cache: about 215 s of CPU in all (1.5-17 s
+a drive, dense drives the dearest), so about 2 minutes on 2 free cores
 (``benchmarks/campaign.py --drives 30`` prints the same table).
 """
 
