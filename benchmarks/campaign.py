@@ -17,6 +17,20 @@ assertion, and the worst cases by ATE ratio and by NEES; writes ``campaign.json`
 the last), so that a campaign stopped early keeps the drives it finished. The drives run in ``--jobs`` worker processes; the
 figures do not depend on how many. Identified models go to a fresh temporary cache unless
 ``--cache`` names one, so that every figure is the code's as it is now.
+
+Measured on main 786e560 (200 drives, seeds 0-199, 250 frames, 2 jobs on a shared 2-core
+machine: 61 min; 2.8-19.7 s of CPU a drive, mean 6.4): the ATE assertion holds on 176 (88.0 %),
+the NEES assertion on 77 (38.5 %), both on 76 (38.0 %). No estimator failed outright. Every
+NEES failure is overconfidence (none below the band). With under 3 observations a frame the
+NEES assertion fails on 57 of 59 drives and the ATE assertion on 18 of 59 (18 of the 24 ATE
+failures are there; the worst, smoother or EKF up to 2.9x dead reckoning's); there the
+identified velocity sigma is a median 0.38x the true one on the clean edition (0.06-9x) and
+0.60x on the noisy one. A speed-scale error on clean velocities fails the NEES assertion at
+every density (29 of 31 drives). Velocity-error correlation is never identified on these 25 s
+drives (0 of 79), and the noisy edition with it fails NEES on 11 of 17 drives with 3 or more
+observations a frame. Even drives with no optional fault fail NEES on 2 of 11 (dead reckoning
+17-19): one drive's mean pose NEES is correlated along the drive, so some such failures are
+chance.
 """
 
 from __future__ import annotations
