@@ -27,8 +27,8 @@ failures are there; the worst, smoother or EKF up to 2.9x dead reckoning's); the
 identified velocity sigma is a median 0.38x the true one on the clean edition (0.06-9x) and
 0.60x on the noisy one. A speed-scale error on clean velocities fails the NEES assertion at
 every density (29 of 31 drives). Velocity-error correlation is never identified on these 25 s
-drives (0 of 79), and the noisy edition with it (no speed error) fails NEES on 11 of 17 drives with 3+
-observations a frame. Even drives with no optional fault fail NEES on 2 of 11 (dead reckoning
+drives (0 of 79), and the noisy edition with it (no speed error) fails NEES on 11 of 17 drives
+with 3 or more observations a frame. Even drives with no optional fault fail NEES on 2 of 11 (dead reckoning
 17-19): one drive's mean pose NEES is correlated along the drive, so some such failures are
 chance.
 """
