@@ -14,9 +14,10 @@ Prints one row per drive (seed, faults, observations per frame, each estimator's
 and mean pose NEES, the worst ATE ratio, pass/fail of each assertion), the pass rate of each
 assertion, and the worst cases by ATE ratio and by NEES; writes ``campaign.json`` into
 ``--out`` (default: the current folder), rewritten after every drive (``complete`` false until
-the last), so that a campaign stopped early keeps the drives it finished. The drives run in ``--jobs`` worker processes; the
-figures do not depend on how many. Identified models go to a fresh temporary cache unless
-``--cache`` names one, so that every figure is the code's as it is now.
+the last), so that a campaign stopped early keeps the drives it finished. The drives run in
+``--jobs`` worker processes; the figures do not depend on how many. Identified models go to a
+fresh temporary cache unless ``--cache`` names one, so that every figure is the code's as it
+is now.
 
 Measured on main 786e560 (200 drives, seeds 0-199, 250 frames, 2 jobs on a shared 2-core
 machine: 61 min; 2.8-19.7 s of CPU a drive, mean 6.4): the ATE assertion holds on 176 (88.0 %),
@@ -28,9 +29,9 @@ identified velocity sigma is a median 0.38x the true one on the clean edition (0
 0.60x on the noisy one. A speed-scale error on clean velocities fails the NEES assertion at
 every density (29 of 31 drives). Velocity-error correlation is never identified on these 25 s
 drives (0 of 79), and the noisy edition with it (no speed error) fails NEES on 11 of 17 drives
-with 3 or more observations a frame. Even drives with no optional fault fail NEES on 2 of 11 (dead reckoning
-17-19): one drive's mean pose NEES is correlated along the drive, so some such failures are
-chance.
+with 3 or more observations a frame. Even drives with no optional fault fail NEES on 2 of 11
+(dead reckoning 17-19): one drive's mean pose NEES is correlated along the drive, so some such
+failures are chance.
 """
 
 from __future__ import annotations

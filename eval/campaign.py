@@ -119,7 +119,8 @@ class SpeedScaleFault:
         if not (math.isfinite(self.amplitude) and 0.0 <= self.amplitude < 1.0):
             raise ValueError(f"speed-scale amplitude must be in [0, 1), got {self.amplitude!r}")
         if not (math.isfinite(self.time_scale_s) and self.time_scale_s > 0.0):
-            raise ValueError(f"speed-scale time_scale_s must be positive, got {self.time_scale_s!r}")
+            raise ValueError(f"speed-scale time_scale_s must be positive, got "
+                             f"{self.time_scale_s!r}")
 
     def error(self, timestamps: np.ndarray) -> np.ndarray:
         """``s(t)`` (T,) at ``timestamps`` (s): the relative speed error of each sample."""

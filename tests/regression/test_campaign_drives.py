@@ -86,7 +86,8 @@ def _assert_meets_both(outcome) -> None:
         lines = [f"drive {outcome.drive.seed} ({outcome.drive.describe()}; "
                  f"{outcome.obs_per_frame:.1f} observations a frame):"]
         for a in outcome.assertions:
-            lines += [f"  {a.name}: {'passes' if a.ok else 'FAILS'}"] + [f"    {x}" for x in a.detail]
+            lines.append(f"  {a.name}: {'passes' if a.ok else 'FAILS'}")
+            lines += [f"    {x}" for x in a.detail]
         pytest.fail("\n".join(lines), pytrace=False)
 
 
