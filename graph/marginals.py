@@ -271,15 +271,21 @@ def eliminate_landmarks(H: sp.spmatrix, n_l: int, n_frames: int, tracks: np.ndar
     X_ = scipy.linalg.cho_solve_banded((inner.Lb, True), C, check_finite=False)
     Z = D - C.T @ X_
     Z = 0.5 * (Z + Z.T)
+    n_long = int(np.count_nonzero(long_mask))
     try:
         Z_factor = scipy.linalg.cho_factor(Z, lower=True, check_finite=True)
-    except (np.linalg.LinAlgError, ValueError):
-        raise EstimationError("marginals: the information matrix of the long-lived landmarks "
-                              "and other variables is not positive definite (an "
-                              "under-constrained variable)") from None
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        # LAPACK's order of the failing leading minor: the border variable it falls in
+        found = re.search(r"(\d+)", str(exc)) if isinstance(exc, np.linalg.LinAlgError) else None
+        col = int(found.group(1)) - 1 if found else None
+        where = "" if col is None else " near " + key_name(
+            L(int(tracks[long_mask][col // 3])) if col < 3 * n_long
+            else other_keys[min((col - 3 * n_long) // 3, len(other_keys) - 1)])
+        raise EstimationError(f"marginals: the information matrix of the long-lived landmarks "
+                              f"and other variables is not positive definite{where} (an "
+                              f"under-constrained variable)") from None
     Sigma = scipy.linalg.cho_solve(Z_factor, np.eye(Z.shape[0]), check_finite=False)
     Sigma = 0.5 * (Sigma + Sigma.T)
-    n_long = int(np.count_nonzero(long_mask))
     border = Border(
         tracks=tracks[long_mask], other_keys=other_keys,
         other_offsets=3 * n_long + 3 * np.arange(len(other_keys)), C=C, H_bl=H_bl, X=X_,

@@ -179,5 +179,5 @@ def test_an_undetermined_border_variable_is_refused(shapes):
     graph.add(gtsam.BetweenFactorPoint3(b0, b1, gtsam.Point3(1, 1, 1),
                                         gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
     system = whitened_system(graph, values, "test")
-    with pytest.raises(EstimationError, match="not positive definite"):
+    with pytest.raises(EstimationError, match="not positive definite near .*b1"):
         information_solver(system.A, system.keys, g.n_frames)
