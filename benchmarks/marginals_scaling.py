@@ -101,8 +101,9 @@ def build(shape: str, n_frames: int, seed: int = 0) -> ShapeGraph:
     max_obs = None if shape == "room" else 12
     for k, pose in enumerate(truth):
         cams = gtsam.StereoCamera(pose, CALIBRATION)
-        local = np.array([pose.transformTo(p) for p in points])
-        near = np.flatnonzero((local[:, 2] > 1.0) & (local[:, 2] < 25.0))
+        local = (points - pose.translation()) @ pose.rotation().matrix()  # in the camera frame
+        near = np.flatnonzero((local[:, 2] > 1.0) & (local[:, 2] < 25.0)
+                              & (np.abs(local[:, 0]) < local[:, 2]) & (np.abs(local[:, 1]) < local[:, 2]))
         for j in near:
             if max_obs is not None and seen[j] >= max_obs:
                 if not (shape == "loop" and k > n_frames - 30):
