@@ -17,7 +17,25 @@ that costs milliseconds per key (about 10 s for a 300-frame simulated drive).
    factor with a pose at or before it), so each step costs what its own stretch of the drive
    needs, not the drive's longest track;
 4. each landmark's covariance ``A_l + B Sigma_pp B^T`` with ``A_l = H_ll^-1``,
-   ``B = -H_ll^-1 H_lp``, over the poses of its track (all inside the band).
+   ``B = -H_ll^-1 H_lp``, over the poses of its track (all inside the band);
+5. the border (an arrowhead): a landmark seen over a long stretch of the drive (a room's, a
+   loop's seen at the start and at the end) would widen the band of every pose to its span,
+   the whole drive at worst ((6T)^2 per step). Such landmarks, and any variable that is
+   neither a pose nor a landmark (the gyro bias), are not eliminated in step 2 but kept as a
+   dense border ``[S C; C^T D]``: the band of ``S`` is then set by the short tracks,
+   ``X = S^-1 C`` costs banded solves, ``Z = D - C^T X`` is small and dense, and the blocks
+   asked for are ``S^-1``'s from step 3 plus a low-rank term: ``Sigma_pp = S^-1 + X Z^-1 X^T``
+   on the band blocks only (as ``Y Y^T``, ``Y = X Lz^-T``, ``Z = Lz Lz^T``: 6 x nb a pose),
+   ``Sigma_bb = Z^-1`` (the long landmarks' and the bias's covariances), ``Sigma_pb = -X Z^-1``,
+   a short landmark's ``A_l + B S^-1 B^T + G Z^-1 G^T`` with ``G = B X`` (so ``(B Y)(B Y)^T``;
+   plus ``A_l H_lb`` in ``G`` where it touches the border), ``log det H = log det H_ll +
+   log det S + log det Z``. Which landmarks go to the border is a cost model's choice
+   (:func:`border_landmarks`); it picks none unless that is clearly cheaper, so drives whose
+   tracks are all short (KITTI's) keep steps 1-4 exactly. Cost: about ``T w^2`` for the band
+   ``w`` of the short tracks plus ``T w nb + T nb^2`` for a border of ``nb`` columns; never a
+   dense window of the whole drive (benchmarks/marginals_scaling.py, on a loaded 2-core
+   machine: a room of 4,541 frames with 20 landmarks seen in every frame, all its blocks in
+   about 5 s at 0.3 GB; a 4,541-frame loop with 126 landmarks seen again, about a minute).
 
 GTSAM returns the ``Pose3`` marginal in its rotation-first right perturbation; the Estimate
 stores the translation-first right perturbation, so each pose block goes through
@@ -82,50 +100,237 @@ def whitened_system(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     return WhitenedSystem(A, b, keys, offsets)
 
 
+#: The cost model of :func:`border_landmarks`, per pose, in seconds-like units measured on this
+#: code (benchmarks/marginals_scaling.py): a band of width ``w`` columns costs ``BAND_COST w^2``
+#: (banded Cholesky and Takahashi recursion), a border of ``nb`` columns ``SOLVE_COST w nb``
+#: (the banded solves of ``X = S^-1 C``) plus ``CORRECTION_COST nb^2`` (the low-rank terms).
+BAND_COST = 1.0
+SOLVE_COST = 4.0
+CORRECTION_COST = 2.0
+#: A border is used only where the model says it costs at most a quarter of the band alone:
+#: the model is rough, and on drives whose tracks are all short (KITTI's, where the best cut
+#: saves less than that) the band alone keeps today's arithmetic, bit for bit.
+BORDER_GAIN = 4.0
+
+
+@dataclass
+class Border:
+    """The variables kept out of the banded pose system (the arrowhead's border, module
+    docstring): long-lived landmarks and any variable that is neither a pose nor a landmark
+    (the gyro bias), after the short landmarks' closed-form elimination. Columns: the long
+    landmarks (3 each, in ``tracks`` order), then the other variables (``other_keys``)."""
+
+    tracks: np.ndarray  # the long landmarks' tracks, sorted
+    other_keys: list  # the other variables' keys, sorted (H's order)
+    other_offsets: np.ndarray  # each other variable's first border column
+    C: np.ndarray  # (6 T, nb) the reduced pose-border information
+    H_bl: sp.csr_matrix  # (nb, 3 n_short) the border's information with the short landmarks
+    X: np.ndarray  # (6 T, nb) S^-1 C
+    Y: np.ndarray  # (6 T, nb) X Lz^-T (Z = Lz Lz^T): Y Y^T = X Sigma X^T
+    Z_factor: tuple  # scipy.linalg.cho_factor of the border's Schur complement D - C^T X
+    Sigma: np.ndarray  # (nb, nb) its inverse: the border's marginal covariance
+    log_det_Z: float
+
+    @property
+    def size(self) -> int:
+        return self.C.shape[1]
+
+
 @dataclass
 class LandmarksEliminated:
-    """An information matrix ``H`` ordered [landmarks, poses] with its landmarks eliminated in
-    closed form (steps 2-3 of the module docstring): ``A_l = H_ll^-1`` per landmark, ``H_lp``
-    and the banded Cholesky factor ``Lb`` of the reduced pose system ``S`` (``ab`` its lower
-    band, ``w`` the band's width). :meth:`solve` gives ``H^-1 B`` exactly, at the cost of
-    banded triangular solves instead of a sparse LU of the whole ``H``."""
+    """An information matrix ``H`` ordered [landmarks, poses(, other variables)] with its
+    short-lived landmarks eliminated in closed form (steps 2-3 of the module docstring):
+    ``A_l = H_ll^-1`` per such landmark, ``H_lp`` and the banded Cholesky factor ``Lb`` of the
+    reduced pose system ``S`` (``ab`` its lower band, ``w`` the band's width); the long-lived
+    landmarks and the other variables, when any, in :attr:`border`. :meth:`solve` gives
+    ``H^-1 B`` exactly, at the cost of banded triangular solves instead of a sparse LU of the
+    whole ``H``."""
 
-    H_ll: np.ndarray  # (n_lm, 3, 3)
-    A_l: np.ndarray  # (n_lm, 3, 3)
-    A_blocks: sp.csr_matrix  # block-diagonal A_l (3 n_lm, 3 n_lm)
-    H_lp: sp.csr_matrix  # (3 n_lm, 6 T)
+    H_ll: np.ndarray  # (n_short, 3, 3)
+    A_l: np.ndarray  # (n_short, 3, 3)
+    A_blocks: sp.csr_matrix  # block-diagonal A_l (3 n_short, 3 n_short)
+    H_lp: sp.csr_matrix  # (3 n_short, 6 T)
     ab: np.ndarray  # S's lower band (w + 1, 6 T)
     Lb: np.ndarray  # its Cholesky factor, same layout
     w: int
-    tracks: np.ndarray  # the landmarks' tracks, sorted (H's landmark blocks, in order)
+    tracks: np.ndarray  # every landmark's track, sorted (H's landmark blocks, in order)
+    short_tracks: np.ndarray | None = None  # the eliminated landmarks' tracks (None: all)
+    border: Border | None = None  # long landmarks and other variables (None: there are none)
+    #: H's rows in the order [short landmarks, poses, border] (None: H is already so ordered)
+    order: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.short_tracks is None:
+            self.short_tracks = self.tracks
 
     @property
     def n_l(self) -> int:
+        """Rows of the eliminated (short) landmarks."""
         return self.H_lp.shape[0]
+
+    def other_covariance(self, key: int) -> np.ndarray:
+        """The marginal covariance (3, 3) of a variable of ``H`` that is neither a pose nor a
+        landmark (the gyro bias), from the border (step 5 of the module docstring)."""
+        keys = [] if self.border is None else self.border.other_keys
+        if int(key) not in keys:
+            raise EstimationError(f"marginals: {key_name(int(key))} is not a variable of the graph")
+        o = int(self.border.other_offsets[keys.index(int(key))])
+        return self.border.Sigma[o:o + 3, o:o + 3].copy()
+
+    def _arrow_solve(self, r_p: np.ndarray, r_b: np.ndarray | None) -> tuple:
+        """``[S C; C^T D]^-1 [r_p; r_b]`` (``r_b`` None: zero) by the arrowhead's Schur
+        complement: ``y = S^-1 r_p``, ``z = Z^-1 (r_b - C^T y)``, ``x_p = y - X z``."""
+        y = scipy.linalg.cho_solve_banded((self.Lb, True), r_p, check_finite=False)
+        if self.border is None:
+            return y, None
+        bd = self.border
+        rhs = -(bd.C.T @ y) if r_b is None else r_b - bd.C.T @ y
+        z = scipy.linalg.cho_solve(bd.Z_factor, rhs, check_finite=False)
+        return y - bd.X @ z, z
 
     def pose_solve(self, B_p: np.ndarray) -> np.ndarray:
         """``S^-1 B_p``: ``H^-1 B`` for a ``B`` that is zero on the landmark rows, read on the
         pose rows only (the pose block of ``H^-1`` is ``S^-1``); ``B_p`` (6 T,) or (6 T, m)."""
-        return scipy.linalg.cho_solve_banded((self.Lb, True), np.asarray(B_p, dtype=float),
-                                             check_finite=False)
+        return self._arrow_solve(np.asarray(B_p, dtype=float), None)[0]
 
     def solve(self, B: np.ndarray) -> np.ndarray:
         """``H^-1 B`` for ``B`` (n,) or (n, m), rows ordered as ``H``'s columns."""
         B = np.asarray(B, dtype=float)
-        b_l, b_p = B[:self.n_l], B[self.n_l:]
+        if self.order is not None:
+            B = B[self.order]
+        n_p = self.Lb.shape[1]
+        b_l, b_p, b_b = B[:self.n_l], B[self.n_l:self.n_l + n_p], B[self.n_l + n_p:]
         t = self.A_blocks @ b_l
-        y_p = self.pose_solve(b_p - self.H_lp.T @ t)
-        return np.concatenate([t - self.A_blocks @ (self.H_lp @ y_p), y_p])
+        if self.border is None:
+            y_p = self.pose_solve(b_p - self.H_lp.T @ t)
+            return np.concatenate([t - self.A_blocks @ (self.H_lp @ y_p), y_p])
+        H_bl = self.border.H_bl
+        y_p, y_b = self._arrow_solve(b_p - self.H_lp.T @ t, b_b - H_bl @ t)
+        y_l = t - self.A_blocks @ (self.H_lp @ y_p + H_bl.T @ y_b)
+        out = np.concatenate([y_l, y_p, y_b])
+        if self.order is not None:
+            out[self.order] = out.copy()
+        return out
 
 
-def eliminate_landmarks(H: sp.spmatrix, n_l: int, n_frames: int,
-                        tracks: np.ndarray) -> LandmarksEliminated:
+def border_landmarks(first: np.ndarray, last: np.ndarray, pose_band: int,
+                     n_frames: int) -> np.ndarray:
+    """Which landmarks go to the border (a boolean mask): those whose track spans more poses
+    than the cut that makes the estimated cost smallest. A landmark kept in the band widens
+    the band of every pose to its span ``s`` (a banded Cholesky and a Takahashi recursion cost
+    about ``T (6 s)^2`` each); in the border it costs three columns of ``X = S^-1 C`` (banded
+    solves, ``T 6 w`` each) and its share of the low-rank correction (``T nb^2``).
+    ``first``/``last`` are each landmark's first and last pose, ``pose_band`` the band (in
+    poses) of the factors between poses. The cut is at most the widest span: a drive whose
+    tracks are all short keeps every landmark in the band."""
+    span = np.asarray(last, dtype=np.int64) - np.asarray(first, dtype=np.int64)  # band in poses
+    if span.size == 0:
+        return np.zeros(0, dtype=bool)
+    cuts = np.unique(np.r_[span, pose_band])
+    cuts = cuts[cuts >= pose_band]
+    sorted_span = np.sort(span)
+    n_out = span.size - np.searchsorted(sorted_span, cuts, side="right")  # landmarks above it
+    w = 6.0 * cuts + 6.0
+    nb = 3.0 * n_out
+    cost = BAND_COST * w * w + SOLVE_COST * w * nb + CORRECTION_COST * nb * nb
+    best = int(np.argmin(cost))
+    if cost[best] * BORDER_GAIN > cost[-1]:  # not clearly cheaper: everything in the band
+        return np.zeros(span.size, dtype=bool)
+    return span > cuts[best]
+
+
+def eliminate_landmarks(H: sp.spmatrix, n_l: int, n_frames: int, tracks: np.ndarray,
+                        other_keys: list | None = None,
+                        long_tracks: np.ndarray | None = None) -> LandmarksEliminated:
     """:class:`LandmarksEliminated` of ``H`` (columns [landmarks of ``tracks``, sorted, 3 each;
-    ``n_frames`` poses, 6 each], ``n_l`` the landmark columns). Raises
-    :class:`ekf.errors.EstimationError` naming the variable where ``H`` is not positive
-    definite."""
+    ``n_frames`` poses, 6 each; the ``other_keys``, 3 each], ``n_l`` the landmark columns).
+    The landmarks whose tracks are in ``long_tracks`` (default: :func:`border_landmarks`) and
+    the other variables form the border. Raises :class:`ekf.errors.EstimationError` naming the
+    variable where ``H`` is not positive definite."""
     H = sp.csr_matrix(H)
     tracks = np.sort(np.asarray(tracks, dtype=np.int64))
+    other_keys = list(other_keys or [])
+    n_lm = n_l // 3
+    n_p = 6 * n_frames
+    if long_tracks is None:
+        long_mask = _long_landmarks(H, n_l, n_frames)
+    else:
+        long_mask = np.isin(tracks, np.asarray(long_tracks, dtype=np.int64))
+    if not long_mask.any() and not other_keys:
+        return _eliminate(H, n_l, n_frames, tracks)
+    # reorder to [short landmarks, poses, border: long landmarks, others]
+    lm_cols = (3 * np.arange(n_lm)[:, None] + np.arange(3)).reshape(n_lm, 3)
+    order = np.concatenate([lm_cols[~long_mask].ravel(), n_l + np.arange(n_p),
+                            lm_cols[long_mask].ravel(), np.arange(n_l + n_p, H.shape[0])])
+    Hr = H[order][:, order].tocsr()
+    n_s = 3 * int(np.count_nonzero(~long_mask))
+    inner = _eliminate(Hr[:n_s + n_p, :n_s + n_p], n_s, n_frames, tracks[~long_mask])
+    # --- the border: its reduced information, X = S^-1 C, Schur complement ------------------
+    H_bl = Hr[n_s + n_p:, :n_s].tocsr()
+    H_bp = Hr[n_s + n_p:, n_s:n_s + n_p].tocsr()
+    H_bb = Hr[n_s + n_p:, n_s + n_p:].toarray()
+    C = (H_bp - H_bl @ (inner.A_blocks @ inner.H_lp)).T.toarray()
+    D = H_bb - (H_bl @ (inner.A_blocks @ H_bl.T)).toarray()
+    X_ = scipy.linalg.cho_solve_banded((inner.Lb, True), C, check_finite=False)
+    Z = D - C.T @ X_
+    Z = 0.5 * (Z + Z.T)
+    n_long = int(np.count_nonzero(long_mask))
+    try:
+        Z_factor = scipy.linalg.cho_factor(Z, lower=True, check_finite=True)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        # LAPACK's order of the failing leading minor: the border variable it falls in
+        found = re.search(r"(\d+)", str(exc)) if isinstance(exc, np.linalg.LinAlgError) else None
+        col = int(found.group(1)) - 1 if found else None
+        where = "" if col is None else " near " + key_name(
+            L(int(tracks[long_mask][col // 3])) if col < 3 * n_long
+            else other_keys[min((col - 3 * n_long) // 3, len(other_keys) - 1)])
+        raise EstimationError(f"marginals: the information matrix of the long-lived landmarks "
+                              f"and other variables is not positive definite{where} (an "
+                              f"under-constrained variable)") from None
+    Sigma = scipy.linalg.cho_solve(Z_factor, np.eye(Z.shape[0]), check_finite=False)
+    Sigma = 0.5 * (Sigma + Sigma.T)
+    Y = scipy.linalg.solve_triangular(Z_factor[0], X_.T, lower=True, check_finite=False).T
+    border = Border(
+        tracks=tracks[long_mask], other_keys=other_keys,
+        other_offsets=3 * n_long + 3 * np.arange(len(other_keys)), C=C, H_bl=H_bl, X=X_, Y=Y,
+        Z_factor=Z_factor, Sigma=Sigma,
+        log_det_Z=2.0 * float(np.sum(np.log(np.diag(Z_factor[0])))))
+    inner.tracks, inner.border, inner.order = tracks, border, order
+    return inner
+
+
+def _long_landmarks(H: sp.csr_matrix, n_l: int, n_frames: int) -> np.ndarray:
+    """:func:`border_landmarks` of ``H``'s landmarks (their spans read off their rows of
+    ``H``, the band of the factors between poses off ``H_pp``, only where a border could pay
+    even with no such factors: a bound that spares the pose rows on short-track drives)."""
+    n_lm = n_l // 3
+    n_p = 6 * n_frames
+    mask = np.zeros(n_lm, dtype=bool)
+    if n_lm == 0:
+        return mask
+    ptr = H.indptr[:n_l + 1]
+    cols = H.indices[:ptr[-1]]
+    pose = np.where(cols >= n_l, (cols - n_l) // 6, -1)
+    filled = np.flatnonzero(np.diff(ptr))
+    last_row = np.full(n_l, -1, dtype=np.int64)
+    first_row = np.full(n_l, n_frames, dtype=np.int64)
+    if filled.size:
+        last_row[filled] = np.maximum.reduceat(pose, ptr[filled])
+        first_row[filled] = np.minimum.reduceat(np.where(pose >= 0, pose, n_frames), ptr[filled])
+    first, last = first_row.reshape(n_lm, 3).min(axis=1), last_row.reshape(n_lm, 3).max(axis=1)
+    seen = last >= 0
+    if not border_landmarks(first[seen], last[seen], 0, n_frames).any():
+        return mask  # no border even if nothing but the landmarks widened the band
+    H_pp = H[n_l:n_l + n_p, n_l:n_l + n_p].tocoo()
+    pose_band = int(np.max(np.abs(H_pp.row // 6 - H_pp.col // 6))) if H_pp.nnz else 0
+    mask[seen] = border_landmarks(first[seen], last[seen], pose_band, n_frames)
+    return mask
+
+
+def _eliminate(H: sp.csr_matrix, n_l: int, n_frames: int,
+               tracks: np.ndarray) -> LandmarksEliminated:
+    """Closed-form elimination of every landmark of ``H`` ([landmarks, poses]) and the banded
+    Cholesky of the reduced pose system (steps 2-3 of the module docstring)."""
     n_lm = n_l // 3
     # --- landmark blocks, inverted in closed form ------------------------------------------
     b = np.arange(n_lm)
@@ -170,17 +375,31 @@ def eliminate_landmarks(H: sp.spmatrix, n_l: int, n_frames: int,
 
 def information_solver(A: sp.spmatrix, keys: list, n_frames: int) -> LandmarksEliminated:
     """``H = A^T A`` of a whitened Jacobian ``A`` (:class:`WhitenedSystem`) whose columns are
-    the variables ``keys``, sorted: landmarks, then the poses ``0..n_frames-1`` and nothing
-    else; with its landmarks eliminated. ``.solve(B)`` is ``H^-1 B`` (the Laplace posterior
-    covariance times ``B``)."""
-    poses = [X(k) for k in range(n_frames)]
-    n_lm = len(keys) - n_frames
-    if n_lm < 0 or list(keys[n_lm:]) != poses or any(
-            chr(gtsam.Symbol(int(k)).chr()) != "l" for k in keys[:n_lm]):
+    the variables ``keys``, sorted: the poses ``0..n_frames-1``, landmarks and any other
+    variables (3-dimensional: the gyro bias), which join the border; with its landmarks
+    eliminated. ``.solve(B)`` is ``H^-1 B`` (the Laplace posterior covariance times ``B``)."""
+    kinds = np.array([chr(gtsam.Symbol(int(k)).chr()) for k in keys])
+    is_pose, is_lm = kinds == "x", kinds == "l"
+    if [int(k) for k, p in zip(keys, is_pose) if p] != [X(k) for k in range(n_frames)]:
         raise EstimationError("marginals: the graph's variables are not the expected poses and "
                               "landmarks")
-    tracks = np.array([gtsam.Symbol(int(k)).index() for k in keys[:n_lm]], dtype=np.int64)
-    return eliminate_landmarks((A.T @ A).tocsr(), 3 * n_lm, n_frames, tracks)
+    lm_keys = [k for k, l in zip(keys, is_lm) if l]
+    tracks = np.array([gtsam.Symbol(int(k)).index() for k in lm_keys], dtype=np.int64)
+    H = (A.T @ A).tocsr()
+    other = ~(is_pose | is_lm)
+    if not other.any():  # sorted keys: the landmarks ("l") come before the poses ("x")
+        return eliminate_landmarks(H, 3 * len(lm_keys), n_frames, tracks)
+    # columns reordered to [landmarks, poses, others] (sorted keys put "b" before "l")
+    dims = np.array([_key_dim(int(k)) for k in keys])
+    starts = np.r_[0, np.cumsum(dims)[:-1]]
+    cols = [np.arange(s, s + d) for s, d in zip(starts, dims)]
+    outer = np.concatenate([cols[i] for i in np.flatnonzero(is_lm)]
+                           + [cols[i] for i in np.flatnonzero(is_pose)]
+                           + [cols[i] for i in np.flatnonzero(other)])
+    reduced = eliminate_landmarks(H[outer][:, outer], 3 * len(lm_keys), n_frames, tracks,
+                                  other_keys=[int(k) for k, o in zip(keys, other) if o])
+    reduced.order = outer if reduced.order is None else outer[reduced.order]
+    return reduced
 
 
 def schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
@@ -231,8 +450,14 @@ def _schur_marginals(reduced: LandmarksEliminated, n_frames: int, n_tracks: int,
     """Pose (GTSAM convention unless converted by the caller) and landmark marginals (steps 3-4
     of the module docstring) of an information matrix with its landmarks eliminated; with
     ``pairs`` also the cross-covariances of consecutive poses (GTSAM convention). Without
-    ``landmarks`` the landmark covariances are left NaN (not computed)."""
-    tracks = reduced.tracks
+    ``landmarks`` the landmark covariances are left NaN (not computed). With a border
+    (:class:`Border`) the recursion runs on ``S`` and each block gets its low-rank correction
+    (step 5 of the module docstring)."""
+    tracks = reduced.short_tracks
+    border = reduced.border
+    if border is not None:  # Y per pose (T, 6, nb): X_p Sigma_bb X_q^T = Y_p Y_q^T
+        Y_pose = border.Y.reshape(n_frames, 6, border.size)
+        H_lb = border.H_bl.T.tocsr() if border.H_bl.nnz else None
     n_lm = len(tracks)
     H_ll, A_l, H_lp, ab, Lb, w = reduced.H_ll, reduced.A_l, reduced.H_lp, reduced.ab, reduced.Lb, reduced.w
     n = 6 * n_frames
@@ -301,10 +526,22 @@ def _schur_marginals(reduced: LandmarksEliminated, n_frames: int, n_tracks: int,
         if landmarks and group.size:
             landmark_cov[tracks[group]] = _landmark_covariances(
                 A_l[group], new, slot, entry_order[entry_start[p]:entry_start[p + 1]],
-                entry_lm, entry_row, entry_col, H_lp_csr.data, tracks)
+                entry_lm, entry_row, entry_col, H_lp_csr.data, tracks,
+                border=None if border is None else (border, p, group, H_lb))
+    if border is not None:  # Sigma_pp = S^-1 + X Sigma_bb X^T on the blocks asked for
+        pose_cov += Y_pose @ np.swapaxes(Y_pose, 1, 2)
+        pose_cov = 0.5 * (pose_cov + np.swapaxes(pose_cov, 1, 2))
+        if pairs and n_frames > 1:
+            pair_cov += Y_pose[:-1] @ np.swapaxes(Y_pose[1:], 1, 2)
+        n_long = len(border.tracks)
+        if landmarks and n_long:
+            blocks = border.Sigma[:3 * n_long, :3 * n_long].reshape(n_long, 3, n_long, 3)
+            landmark_cov[border.tracks] = blocks[np.arange(n_long), :, np.arange(n_long), :]
     if pairs:  # log det H = log det H_ll + log det S (the Schur complement's Cholesky)
         log_det = float(np.sum(np.linalg.slogdet(H_ll)[1])) if n_lm else 0.0
         log_det += 2.0 * float(np.sum(np.log(Lb[0])))
+        if border is not None:  # ... + log det of the border's Schur complement
+            log_det += border.log_det_Z
         return pose_cov, landmark_cov, pair_cov, log_det
     return pose_cov, landmark_cov
 
@@ -312,10 +549,13 @@ def _schur_marginals(reduced: LandmarksEliminated, n_frames: int, n_tracks: int,
 def _landmark_covariances(A_g: np.ndarray, window: np.ndarray, slot: np.ndarray,
                           entries: np.ndarray, entry_lm: np.ndarray, entry_row: np.ndarray,
                           entry_col: np.ndarray, data: np.ndarray,
-                          tracks: np.ndarray) -> np.ndarray:
+                          tracks: np.ndarray, border: tuple | None = None) -> np.ndarray:
     """Step 4 of the module docstring for the landmarks whose first pose is the window's:
     ``A_l + B Sigma_pp B^T`` with ``B = -A_l H_lp`` over the poses their tracks span (``A_g``
-    their ``H_ll^-1``, ``entries`` their nonzeros of ``H_lp``, columns from the first pose)."""
+    their ``H_ll^-1``, ``entries`` their nonzeros of ``H_lp``, columns from the first pose).
+    ``border`` (:class:`Border`, the first pose, the landmarks, their ``H_lb`` or None when
+    zero): the window is ``S^-1``'s and the correction ``G Sigma_bb G^T`` is added, with
+    ``G = B X + A_l H_lb`` (step 5)."""
     span = int(entry_col[entries].max()) + 1
     if span > window.shape[0]:
         raise EstimationError("marginals: internal band error at "
@@ -325,6 +565,15 @@ def _landmark_covariances(A_g: np.ndarray, window: np.ndarray, slot: np.ndarray,
     H_rows[slot[entry_lm[entries]], entry_row[entries], entry_col[entries]] = data[entries]
     B = -A_g @ H_rows
     cov = A_g + (B @ window[:span, :span]) @ np.swapaxes(B, 1, 2)
+    if border is not None:
+        bd, p, group, H_lb = border
+        if H_lb is None:  # G Sigma_bb G^T = (B Y)(B Y)^T
+            BY = B @ bd.Y[6 * p:6 * p + span]  # (g, 3, nb)
+            cov = cov + BY @ np.swapaxes(BY, 1, 2)
+        else:
+            rows = (3 * group[:, None] + np.arange(3)).ravel()
+            G = B @ bd.X[6 * p:6 * p + span] + A_g @ H_lb[rows].toarray().reshape(len(group), 3, bd.size)
+            cov = cov + (G @ bd.Sigma) @ np.swapaxes(G, 1, 2)
     return 0.5 * (cov + np.swapaxes(cov, 1, 2))
 
 
