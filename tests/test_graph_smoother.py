@@ -65,6 +65,7 @@ def test_fixed_lag_recovers_ground_truth_and_marginalises(noise_free):
     assert np.all(np.linalg.eigvalsh(est.landmark_cov[has]) > 0)
 
 
+@pytest.mark.regression
 def test_fixed_lag_longer_than_the_drive_is_isam2(noisy):
     """With a window longer than the drive nothing is marginalised: the fixed-lag smoother
     gives iSAM2's estimate (the same updates, with iSAM2 set to relinearise as the fixed-lag
