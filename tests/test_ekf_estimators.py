@@ -113,8 +113,9 @@ def _head(seq, n):
 
 @pytest.mark.parametrize(
     "param, linearisation, bias",
-    [("inverse-depth", "oc", True), ("inverse-depth", "fej", False), ("inverse-depth", "standard", True),
-     ("euclidean", "oc", False), ("euclidean", "fej", True), ("euclidean", "standard", False)],
+    [("inverse-depth", "oc", True)] + [pytest.param(*p, marks=pytest.mark.regression) for p in (  # ~2.5 s each
+     ("inverse-depth", "fej", False), ("inverse-depth", "standard", True),
+     ("euclidean", "oc", False), ("euclidean", "fej", True), ("euclidean", "standard", False))],
 )
 def test_keep_landmarks_equals_the_dense_textbook_update(noisy_sim, param, linearisation, bias):
     """``keep_landmarks`` through :class:`ekf.retired.RetiredLandmarks` (regressions of the
@@ -147,8 +148,8 @@ def _assert_kept_as_dense(fast, dense, marg) -> None:
     assert np.abs(fast.landmarks[has] - marg.landmarks[has]).max() > 1e-3
 
 
-@pytest.mark.parametrize("param, bias", [("inverse-depth", True), ("inverse-depth", False),
-                                         ("euclidean", True), ("euclidean", False)])
+@pytest.mark.parametrize("param, bias", [("inverse-depth", True)] + [pytest.param(*p, marks=pytest.mark.regression) for p in (
+                                         ("inverse-depth", False), ("euclidean", True), ("euclidean", False))])
 def test_invariant_keep_landmarks_equals_the_dense_textbook_update(noisy_sim, param, bias):
     """ekf-invariant's ``keep_landmarks`` through :class:`ekf.retired_invariant.InvariantRetired`
     (the retired landmarks take the pose's twist noise and the bias coupling, RI-1, and the

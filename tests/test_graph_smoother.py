@@ -51,6 +51,7 @@ def test_noise_free_isam2_recovers_ground_truth(noise_free):
     assert np.all(np.isfinite(est.pose_cov))
 
 
+@pytest.mark.regression
 def test_fixed_lag_recovers_ground_truth_and_marginalises(noise_free):
     """A 1 s window on a 12 s noise-free drive: every pose and landmark left the window (and
     was recorded as it left) with a finite, positive definite marginal covariance."""
