@@ -1,4 +1,8 @@
-"""Shared fixtures: where the real drives are, and a session cache of loaded drives.
+"""Shared fixtures: where the real drives are, a session cache of loaded drives, and the tiers.
+
+Plain ``pytest`` runs the fast tier; ``pytest -m regression`` the regression tier (pyproject.toml's
+``addopts`` deselects it by default; see ``pytest_collection_modifyitems`` for what is in it
+whether marked or not).
 
 Real-data tests skip with a clear reason when the data folder or a drive is absent, except in
 CI (``CI=true``), where a missing drive is a failure: CI must never pass by skipping them.
@@ -31,8 +35,24 @@ from vislam.eval.datasets import drive_path as _drive_path
 
 def pytest_configure(config):
     config.addinivalue_line(
-        "markers", "realdata: reads the shared KITTI drives (skipped where absent, never in CI)"
+        "markers",
+        "realdata: reads the shared KITTI drives (skipped where absent; with CI=true a missing "
+        "drive fails: missing_data)",
     )
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Two kinds of test are in the regression tier (``pytest -m regression``) whether marked
+    or not, so that a new one cannot slip into the fast tier: every real-data test, and every
+    test of a research script in benchmarks/ (the ``benchmark_script`` fixture; the fast tier
+    only checks that each script starts: tests/test_benchmark_scripts.py). The mark is added
+    before ``-m`` selects."""
+    for item in items:
+        if item.get_closest_marker("regression"):
+            continue
+        if item.get_closest_marker("realdata") or "benchmark_script" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.regression)
 
 
 def missing_data(reason: str):
@@ -115,3 +135,29 @@ def benchmark_script():
         return loaded[name]
 
     return get
+
+
+#: Every estimator run on shared 0027 by ``study_0027`` (logical names; tests/regression/breaks.py
+#: may swap what runs for one).
+STUDY_0027_ESTIMATORS = ("dead-reckoning", "mapping", "ekf-decoupled", "ekf-joint", "ekf-invariant",
+                         "smoother")
+
+
+@pytest.fixture(scope="session")
+def study_0027(drive_path):
+    """Every estimator on shared 0027 against its ground truth (:func:`vislam.testing.run_drive`,
+    2 worker processes, the file's model and the default settings, or the regression tier's
+    deliberate break), computed once per session for every test that reads it."""
+    from tests.regression.breaks import broken_config, run_name
+    from vislam.ekf.config import FilterConfig
+    from vislam.eval.drives import load_bench_sequence
+    from vislam.testing import run_drive
+
+    path = drive_path("0027")
+    bs = load_bench_sequence(path)
+    if bs.gt is None:
+        missing_data(f"no ground truth for {path} (expected {path.parent}/groundtruth/0027.txt)")
+    study = run_drive({n: run_name(n) for n in STUDY_0027_ESTIMATORS}, bs,
+                      config=broken_config(FilterConfig()), jobs=2)
+    print(f"\n0027: {len(STUDY_0027_ESTIMATORS)} estimators in {study.wall_s:.1f} s")
+    return study

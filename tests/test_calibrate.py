@@ -25,6 +25,7 @@ def fit(seed, velocity_sigma, gyro_sigma, bias=(0.0, 0.0, 0.0), pairings=("mean"
     return identify_model(drive.sequence, FilterConfig(), SETTINGS, pairings=pairings, extrinsic=False)
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_noise_recovered_within_10_percent_at_half_a_metre_per_second(seed):
@@ -38,6 +39,7 @@ def test_noise_recovered_within_10_percent_at_half_a_metre_per_second(seed):
     assert f.radial_k1 is None, f.radial_test  # a pinhole camera: no radial term
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
 def test_radial_lens_term_recovered_within_3_sigma_and_none_without_one(seed):
@@ -57,6 +59,7 @@ def test_radial_lens_term_recovered_within_3_sigma_and_none_without_one(seed):
     assert abs(pinhole.radial_test["estimate"]) < 3.0 * pinhole.radial_test["std"]
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 def test_low_noise_bias_within_1_mrad_and_the_known_limit_of_the_mean_pairing():
     f = fit(2, 0.05, 0.005, BIAS)
@@ -72,6 +75,7 @@ def test_low_noise_bias_within_1_mrad_and_the_known_limit_of_the_mean_pairing():
     assert 0.9 < f.gyro_sigma[0] / 0.005 < 1.40
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 @pytest.mark.parametrize("made_with", ["current", "next"])
 def test_the_pairing_the_data_was_made_with_explains_it_with_the_least_noise(made_with):
@@ -116,7 +120,7 @@ def test_consecutive_pose_covariances_match_gtsam_marginals():
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory):
     folder = tmp_path_factory.mktemp("drive")
-    assert main(["simulate", "--out", str(folder), "--frames", "120", "--seed", "6"]) == 0
+    assert main(["simulate", "--out", str(folder), "--frames", "60", "--seed", "6"]) == 0
     return folder / "sim-seed6.npz"
 
 

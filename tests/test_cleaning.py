@@ -165,6 +165,7 @@ def test_repeated_then_moved_track_fits_only_after_split():
     assert raw > 1.0 and fixed < 1e-6
 
 
+@pytest.mark.regression
 @pytest.mark.realdata
 def test_real_drive_events_and_speed(load_drive):
     expected = {"0022": (66, 3100), "0027": (91, 4196), "0034": (135, 6255)}
@@ -186,6 +187,7 @@ def test_real_drive_events_and_speed(load_drive):
         assert out.track_origin.max() < seq.n_tracks
 
 
+@pytest.mark.regression
 @pytest.mark.realdata
 @pytest.mark.slow
 def test_0027_reprojection_with_ground_truth_improves_when_split(load_drive, drive_path):

@@ -100,6 +100,7 @@ def _figures(results: dict) -> dict:
 # --- the numbers do not depend on the executor -----------------------------------------------
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 def test_monte_carlo_nees_gives_the_same_numbers_locally_and_on_dask(dask_installed):
     from vislam.eval.montecarlo import monte_carlo_nees
@@ -141,6 +142,7 @@ def test_nees_command_on_an_embedded_dask_cluster(dask_installed, tmp_path, caps
     _no_new_children(before)
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 def test_bench_gives_the_same_figures_on_a_dask_cluster_and_leaves_it_running(cluster, tmp_path):
     args = ["bench", "--frames", "60", "-e", "dead-reckoning,ekf-invariant,smoother",
@@ -227,6 +229,7 @@ def user_folder(tmp_path, monkeypatch):
         del sys.modules[name]
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 def test_a_user_estimator_runs_on_the_embedded_cluster_and_its_fault_stops_the_run(
         dask_installed, user_folder, tmp_path, capsys):
@@ -303,7 +306,8 @@ def test_a_scheduler_needs_the_dask_executor(tmp_path, capsys):
 @pytest.mark.skipif(not hasattr(os, "killpg"), reason="process groups are POSIX")
 @pytest.mark.parametrize("signum, rc, line", [
     (signal.SIGINT, 130, "vislam nees: interrupted; nothing written"),
-    (signal.SIGTERM, 143, "vislam nees: terminated; nothing written"),
+    pytest.param(signal.SIGTERM, 143, "vislam nees: terminated; nothing written",
+                 marks=pytest.mark.regression),  # the fast tier has Ctrl-C
 ], ids=["ctrl-c", "sigterm"])
 def test_a_signal_to_the_process_group_closes_the_embedded_cluster(dask_installed, tmp_path,
                                                                     signum, rc, line):

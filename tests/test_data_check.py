@@ -57,6 +57,7 @@ def _assert_consistent(check):
         assert s.threshold > s.dof  # the 99.9 % quantile lies above the mean
 
 
+@pytest.mark.regression
 @pytest.mark.parametrize("seed", [0, 1])
 def test_true_model_agrees_and_chi2_per_dof_is_near_one(seed, kitti_drive):
     result = kitti_drive if seed == 0 else simulate(
@@ -74,6 +75,7 @@ def test_true_model_agrees_and_chi2_per_dof_is_near_one(seed, kitti_drive):
     assert "overall chi2/dof" in lines[1] and "nan" not in " ".join(lines)
 
 
+@pytest.mark.regression
 def test_wrong_extrinsic_in_the_file_is_flagged_in_the_linear_velocity(kitti_drive):
     check, _, _ = check_under(kitti_drive, extrinsic="file")  # true noise, the file's extrinsic
     _assert_consistent(check)
@@ -87,6 +89,7 @@ def test_wrong_extrinsic_in_the_file_is_flagged_in_the_linear_velocity(kitti_dri
     assert "linear velocity residuals" in lines[0] and "x their noise (chi2/dof" in lines[0]
 
 
+@pytest.mark.regression
 def test_velocities_noisier_than_the_settings_say_are_flagged_in_the_linear_part():
     result = simulate(SimConfig(seed=0, n_frames=300, velocity_sigma=0.5))
     wrong = result.model.replace(velocity_sigma=(0.05, 0.05, 0.05))  # per sample, like the sim's

@@ -51,6 +51,7 @@ def test_noise_free_recovers_truth(clean_sim, mode):
         assert est.n_rejected.sum() == 0  # noise-free: nothing gated away
 
 
+@pytest.mark.regression
 def test_noisy_slam_beats_dead_reckoning(noisy_sim):
     seq = noisy_sim.sequence
     dr = _ate(ESTIMATORS["dead-reckoning"](seq, BASE), noisy_sim.poses)
@@ -112,8 +113,9 @@ def _head(seq, n):
 
 @pytest.mark.parametrize(
     "param, linearisation, bias",
-    [("inverse-depth", "oc", True), ("inverse-depth", "fej", False), ("inverse-depth", "standard", True),
-     ("euclidean", "oc", False), ("euclidean", "fej", True), ("euclidean", "standard", False)],
+    [("inverse-depth", "oc", True)] + [pytest.param(*p, marks=pytest.mark.regression) for p in (  # ~2.5 s each
+     ("inverse-depth", "fej", False), ("inverse-depth", "standard", True),
+     ("euclidean", "oc", False), ("euclidean", "fej", True), ("euclidean", "standard", False))],
 )
 def test_keep_landmarks_equals_the_dense_textbook_update(noisy_sim, param, linearisation, bias):
     """``keep_landmarks`` through :class:`ekf.kept_landmarks.KeptLandmarks` (regressions of the
@@ -146,8 +148,8 @@ def _assert_kept_as_dense(fast, dense, marg) -> None:
     assert np.abs(fast.landmarks[has] - marg.landmarks[has]).max() > 1e-3
 
 
-@pytest.mark.parametrize("param, bias", [("inverse-depth", True), ("inverse-depth", False),
-                                         ("euclidean", True), ("euclidean", False)])
+@pytest.mark.parametrize("param, bias", [("inverse-depth", True)] + [pytest.param(*p, marks=pytest.mark.regression) for p in (
+                                         ("inverse-depth", False), ("euclidean", True), ("euclidean", False))])
 def test_invariant_keep_landmarks_equals_the_dense_textbook_update(noisy_sim, param, bias):
     """ekf-invariant's ``keep_landmarks`` through :class:`ekf.kept_landmarks_invariant.InvariantKeptLandmarks`
     (the retired landmarks take the pose's twist noise and the bias coupling, RI-1, and the
@@ -205,24 +207,19 @@ def test_joint_update_matches_dense_kalman_reference(noisy_sim, linearisation):
     np.testing.assert_allclose(st.lm_mean - m0, dx_ref[6:].reshape(-1, 3), atol=1e-9)
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 @pytest.mark.realdata
-def test_0027_slam_beats_dead_reckoning(drive_path, load_drive):
-    from vislam.eval.groundtruth import find_ground_truth
-    from vislam.eval.metrics import ate_rmse
-
-    seq = load_drive("0027")
-    gt = find_ground_truth(drive_path("0027"))
-    assert gt is not None, "groundtruth/0027.txt not found beside 0027.npz"
-    results = {}
-    for mode in ["dead-reckoning", "ekf-decoupled", "ekf-joint"]:
-        est = ESTIMATORS[mode](seq, FilterConfig())
-        results[mode] = ate_rmse(est.poses[gt.frames], gt.poses, align="se3")
+def test_0027_slam_beats_dead_reckoning(study_0027):
+    # the session's run of every estimator on 0027 (tests/conftest.py), SE(3)-aligned ATE
+    results = {mode: study_0027.scores[mode]["ate_aligned_m"]
+               for mode in ["dead-reckoning", "ekf-decoupled", "ekf-joint"]}
     assert results["dead-reckoning"] == pytest.approx(16.4, abs=0.5)
     assert results["ekf-decoupled"] < results["dead-reckoning"]
     assert results["ekf-joint"] < results["dead-reckoning"]
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 @pytest.mark.parametrize("landmarks", ["euclidean", "inverse-depth"])
 def test_constrained_linearisation_removes_most_spurious_information(landmarks):

@@ -292,6 +292,7 @@ def anees(n_runs, n_frames=150, seed0=100, config=SIM_CONFIG, **kw):
     return float(np.mean(pose_nees)), float(np.median(np.concatenate(lm_nees)))
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 @pytest.mark.parametrize("landmarks", ["euclidean", "inverse-depth"])
 def test_monte_carlo_pose_consistency(landmarks):

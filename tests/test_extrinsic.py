@@ -249,6 +249,7 @@ def check_recovered(drive, fit, max_rotation_mrad=None, max_horizontal_cm=None):
 # 450 frames (45 s of driving): on 300, the rotation about the optical axis (rz) is known to
 # only 2-8 mrad at 0.05 m/s (a true-noise sweep of seeds 1-20), short of the 5 mrad figure
 # for reasons of information, not of the estimator.
+@pytest.mark.regression
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
 def test_wrong_file_extrinsic_recovered_at_five_centimetres_per_second(seed):
@@ -258,6 +259,7 @@ def test_wrong_file_extrinsic_recovered_at_five_centimetres_per_second(seed):
     check_recovered(drive, fit, max_rotation_mrad=5.0, max_horizontal_cm=10.0)
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 def test_kitti_lever_arm_mix_up_recovered_with_the_pairing_identified():
     # The shared data's fault, imu_T_cam's translation (2 m off) stored as cam_T_imu's, plus
@@ -268,6 +270,7 @@ def test_kitti_lever_arm_mix_up_recovered_with_the_pairing_identified():
     check_recovered(drive, fit, max_rotation_mrad=5.0, max_horizontal_cm=10.0)
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 @pytest.mark.parametrize("seed, fault", [(1, "none"), (2, "kitti")])
 def test_true_extrinsic_within_three_sigma_at_half_a_metre_per_second(seed, fault):
@@ -288,6 +291,7 @@ def test_without_the_extrinsic_the_files_is_kept():
     np.testing.assert_array_equal(model.cam_T_imu, drive.sequence.calibration.cam_T_imu)
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 @pytest.mark.parametrize("frames, seed", [(80, 0), (150, 3), (300, 1)])
 def test_short_default_drives_keep_their_true_extrinsic(frames, seed):

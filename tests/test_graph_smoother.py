@@ -51,6 +51,7 @@ def test_noise_free_isam2_recovers_ground_truth(noise_free):
     assert np.all(np.isfinite(est.pose_cov))
 
 
+@pytest.mark.regression
 def test_fixed_lag_recovers_ground_truth_and_marginalises(noise_free):
     """A 1 s window on a 12 s noise-free drive: every pose and landmark left the window (and
     was recorded as it left) with a finite, positive definite marginal covariance."""
@@ -65,6 +66,7 @@ def test_fixed_lag_recovers_ground_truth_and_marginalises(noise_free):
     assert np.all(np.linalg.eigvalsh(est.landmark_cov[has]) > 0)
 
 
+@pytest.mark.regression
 def test_fixed_lag_longer_than_the_drive_is_isam2(noisy):
     """With a window longer than the drive nothing is marginalised: the fixed-lag smoother
     gives iSAM2's estimate (the same updates, with iSAM2 set to relinearise as the fixed-lag

@@ -154,6 +154,7 @@ def test_simulated_repeat_events_are_found_and_cleaned(drive_with_events):
     assert np.all(np.isin(sim.sequence.obs.frame_index[differs], [e.frame for e in events]))
 
 
+@pytest.mark.regression
 def test_prior_improves_the_smoother_across_gaps(drive_with_events):
     sim = drive_with_events
     config = FilterConfig()
@@ -171,6 +172,7 @@ def test_prior_improves_the_smoother_across_gaps(drive_with_events):
     assert ate["on"] < 1.1 * ate["exact"], ate
 
 
+@pytest.mark.regression
 def test_prior_improves_isam2_across_gaps():
     from vislam.graph.isam2 import run_isam2
 

@@ -120,6 +120,7 @@ def test_more_lines_than_frames_is_an_error(tmp_path):
         load_ground_truth(path, CAL, n_frames=3)
 
 
+@pytest.mark.regression
 @pytest.mark.realdata
 def test_0027_ground_truth(drive_path):
     gt = find_ground_truth(drive_path("0027"))

@@ -91,6 +91,7 @@ EXPECTED = {  # frames, repeat events, repeats, ground truth
 }
 
 
+@pytest.mark.regression
 @pytest.mark.realdata
 @pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_inspect_shared_drives(name, drive_path, capsys):

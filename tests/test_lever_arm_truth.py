@@ -88,6 +88,7 @@ def test_bad_input_is_named():
         lever_arm_from_truth(P, seq.velocities, seq.dt, R, "previous")
 
 
+@pytest.mark.regression
 @pytest.mark.realdata
 def test_kitti_0027_velocities_are_not_of_kittis_imu_origin(drive_path):
     """The finding behind issue 12's lever-arm figure, pinned: on both editions of 0027 KITTI's

@@ -202,6 +202,7 @@ def test_clean_flag_applies_cleaning(tmp_path):
     assert cleaned.track_origin[-1] == 0
 
 
+@pytest.mark.regression
 @pytest.mark.realdata
 def test_shared_drive_loads_consistently(shared_drive):
     seq = load_sequence(shared_drive)

@@ -93,6 +93,7 @@ def _identified(config):
     return identify_model(result.sequence, extrinsic=False, radial=False), true_model(result)
 
 
+@pytest.mark.regression
 def test_white_velocity_errors_get_no_long_run_sigma():
     config = SimConfig(seed=3, n_frames=10 * MIN_BLOCKS * 5 + 1, velocity_sigma=0.1,
                        gyro_sigma=0.01, velocity_pairing="next")
@@ -102,6 +103,7 @@ def test_white_velocity_errors_get_no_long_run_sigma():
     assert fit.velocity_correlation_time is None and fit.gyro_correlation_time is None, test
 
 
+@pytest.mark.regression
 def test_correlated_velocity_errors_get_their_long_run_sigma():
     """AR(1) velocity errors, a = 0.9 (correlation time 19 frames): every velocity axis is kept
     and the long-run sigma is within a factor of 1.6 of the truth (23 blocks of 5 s; with 12 the forward axis, which vision pins least, is not kept)."""

@@ -40,6 +40,7 @@ def test_notebook_parameter_cell_comes_first():
         assert name in first.source
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 def test_notebook_executes_on_the_quick_benchmark(monkeypatch, tmp_path):
     monkeypatch.setenv("VISLAM_NB_FRAMES", str(TEST_FRAMES))
@@ -75,6 +76,7 @@ def _streams(nb) -> str:
                    if o.output_type == "stream")
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 def test_notebook_executes_on_a_folder_without_ground_truth(monkeypatch, tmp_path):
     """A results folder of a drive file without ground truth (as 0034 is): the notebook loads

@@ -59,6 +59,7 @@ def test_report_holds_readings_tables_and_every_figure(bench_folder):
     assert not re.search(r'src="(?!data:)', page), "a figure is linked, not embedded"
 
 
+@pytest.mark.regression
 def test_report_in_a_headless_browser(bench_folder, tmp_path):
     browser = _browser()
     url = (bench_folder / "report.html").resolve().as_uri()

@@ -111,6 +111,7 @@ def test_score_prints_the_table_and_says_why_nees_is_null(bench, capsys):
     assert "no --cov given" in out
 
 
+@pytest.mark.regression
 def test_score_with_the_identified_model_reproduces_the_benchmark(tmp_path):
     data = _simulate(tmp_path / "data", 60, 2)
     out = tmp_path / "bench"

@@ -209,6 +209,7 @@ def test_monte_carlo_redraws_drift_like_the_simulator():
     np.testing.assert_allclose(out[1], 1.0)
 
 
+@pytest.mark.regression
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
 @pytest.mark.parametrize("a", [0.7, 0.85])

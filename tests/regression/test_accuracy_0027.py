@@ -2,18 +2,18 @@
 estimator on the SE(3)-aligned ATE (m) and on the KITTI drift t_rel (%, 100-800 m segments),
 set about 10 % above what the code measured when the bound was set, so a regression fails.
 
-Every estimator runs once (:func:`vislam.testing.run_drive`: ``eval.study.run_jobs``, 2 worker
-processes, the smoother starting from the invariant EKF as in ``vislam bench``), with the default
-FilterConfig; the bounds are checked by :func:`vislam.testing.assert_accuracy`."""
+Every estimator runs once per session (``study_0027`` in tests/conftest.py:
+:func:`vislam.testing.run_drive`, ``eval.study.run_jobs``, 2 worker processes, the smoother
+starting from the invariant EKF as in ``vislam bench``), with the default FilterConfig; the bounds
+are checked by :func:`vislam.testing.assert_accuracy`."""
 
 from __future__ import annotations
 
 import pytest
 
-from tests.regression.breaks import run_name, skip_or_fail
 from vislam.testing import assert_accuracy
 
-pytestmark = [pytest.mark.slow, pytest.mark.realdata]
+pytestmark = [pytest.mark.slow, pytest.mark.realdata, pytest.mark.regression]
 
 DRIVE = "0027"
 #: estimator -> (aligned ATE bound m, t_rel bound %). Measured (default settings, cleaned
@@ -28,23 +28,6 @@ MEASURED = {
 }
 MARGIN = 1.10
 BOUNDS = {n: (round(a * MARGIN + 0.005, 2), round(t * MARGIN + 0.005, 2)) for n, (a, t) in MEASURED.items()}
-
-
-@pytest.fixture(scope="module")
-def study_0027(kitti_data_dir, regression_config):
-    """Every estimator on 0027 (:func:`vislam.testing.run_drive`), scored against ground truth."""
-    from vislam.eval.drives import load_bench_sequence
-    from vislam.testing import run_drive
-
-    path = kitti_data_dir / f"{DRIVE}.npz"
-    if not path.is_file():
-        skip_or_fail(f"{path} not found")
-    bs = load_bench_sequence(path)
-    if bs.gt is None:
-        skip_or_fail(f"no ground truth for {path} (expected {path.parent}/groundtruth/{DRIVE}.txt)")
-    study = run_drive({n: run_name(n) for n in MEASURED}, bs, config=regression_config, jobs=2)
-    print(f"\n{DRIVE}: {len({run_name(n) for n in MEASURED})} estimators in {study.wall_s:.1f} s")
-    return study
 
 
 @pytest.mark.parametrize("name", list(MEASURED))

@@ -22,7 +22,7 @@ import pytest
 from tests.regression.breaks import skip_or_fail
 from vislam.testing import assert_accuracy
 
-pytestmark = [pytest.mark.slow, pytest.mark.realdata]
+pytestmark = [pytest.mark.slow, pytest.mark.realdata, pytest.mark.regression]
 
 ESTIMATORS = ("dead-reckoning", "ekf-joint", "ekf-invariant", "smoother")
 MARGIN = 1.10

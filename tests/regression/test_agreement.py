@@ -19,7 +19,7 @@ import pytest
 
 from vislam.testing import assert_agrees_with_smoother
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.regression]
 
 
 @pytest.mark.parametrize("name", ["ekf-invariant", "ekf-joint"])

@@ -21,7 +21,7 @@ import pytest
 from vislam.eval.consistency import VERDICT_ABOVE
 from vislam.testing import assert_nees_consistent
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.regression]
 
 CONSISTENT = ("ekf-invariant", "ekf-joint", "smoother")
 
