@@ -45,13 +45,13 @@ def breakdown(est, gt, n_windows: int) -> list[dict]:
     """Per stretch of the drive (``n_windows`` of equal length): NEES, z^2, sd, RMS error and
     the summed rotation-increment error of ``est`` (ekf.estimate.Estimate) against ``gt``
     (eval.groundtruth.GroundTruth)."""
-    from vislam.eval.metrics import nees_pose, pose_errors
+    from vislam.eval.metrics import nees as quadratic_nees, pose_errors
 
     keep = gt.frames < est.n_frames
     frames, truth = gt.frames[keep], gt.poses[keep]
     poses, cov = est.poses[frames], est.pose_cov[frames]
     e = pose_errors(poses, truth)
-    nees = nees_pose(poses, cov, truth)
+    nees = quadratic_nees(e, cov)
     sd = np.sqrt(np.einsum("tii->ti", cov))
     z2 = (e / sd) ** 2
     inc = np.vstack([np.zeros(3), rotation_increments(poses) - rotation_increments(truth)])
