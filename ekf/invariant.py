@@ -89,6 +89,7 @@ from vislam.ekf.geometry import (
 )
 from vislam.ekf.prediction import se3_exp_single, se3_left_jacobian, so3_exp_and_left_jacobian
 from vislam.ekf.kept_landmarks_invariant import InvariantKeptLandmarks
+from vislam.ekf.kept_landmarks import map_with_kept
 from vislam.ekf.driver import run_filter
 from vislam.ekf.filter import FrameObservations, Landmarks, MotionInput, UpdateCounts
 from vislam.ekf.sequence import Sequence
@@ -353,10 +354,7 @@ class InvariantEKF:
 
     def landmark_map(self) -> tuple[np.ndarray, np.ndarray]:
         st = self.state
-        mean, cov = self.map_mean.copy(), self.map_cov.copy()
-        if st.retired is not None and st.retired.n:
-            mean[st.retired.track], cov[st.retired.track] = st.retired.world(st.P)
-        return mean, cov
+        return map_with_kept(self.map_mean, self.map_cov, st.retired, st.P)
 
     def info(self) -> dict:
         info = {}

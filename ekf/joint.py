@@ -35,7 +35,7 @@ from vislam.ekf.numerics import (NumericalGuard, Scratch, UpdateRejected, add_po
                                  all_finite, finite_norm2, finite_rows)
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.geometry import adjoint, hat, se3_inv
-from vislam.ekf.kept_landmarks import KeptLandmarks, oc_transport_rows
+from vislam.ekf.kept_landmarks import KeptLandmarks, map_with_kept, oc_transport_rows
 from vislam.ekf.prediction import (
     se3_exp_single,
     bias_transition,
@@ -556,10 +556,7 @@ class JointEKF:
 
     def landmark_map(self) -> tuple[np.ndarray, np.ndarray]:
         st = self.state
-        mean, cov = st.map_mean.copy(), st.map_cov.copy()
-        if st.retired is not None and st.retired.n:
-            mean[st.retired.track], cov[st.retired.track] = st.retired.world(st.P)
-        return mean, cov
+        return map_with_kept(st.map_mean, st.map_cov, st.retired, st.P)
 
     def info(self) -> dict:
         info = {"max_state_dim": int(self.max_dim)}

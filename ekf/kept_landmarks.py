@@ -73,6 +73,16 @@ def solve_spd(P: np.ndarray, B: np.ndarray) -> np.ndarray:
         return np.linalg.solve(P, B)
 
 
+def map_with_kept(map_mean: np.ndarray, map_cov: np.ndarray, kept: "KeptLandmarks | None",
+                  P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A filter's map: the ended tracks' ``map_mean``/``map_cov`` (copies), with the rows of the
+    landmarks ``kept`` in the state (``keep_landmarks``) read out at the current ``P``."""
+    mean, cov = map_mean.copy(), map_cov.copy()
+    if kept is not None and kept.n:
+        mean[kept.track], cov[kept.track] = kept.world(P)
+    return mean, cov
+
+
 class KeptLandmarks:
     """Retired landmarks as regressions on the active state (RL-1): ``F`` (3n, dim A), the
     residual covariances ``E`` (n, 3, 3), the means, and what the map output needs."""

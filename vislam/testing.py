@@ -23,7 +23,10 @@ module-level callable ``(seq, settings) -> Estimate`` (:mod:`vislam.eval.registr
   jobs=1, align="se3") -> DriveStudy``: the estimators on one drive (a .npz path with its
   ground truth beside it, a SimConfig or a SimResult), scored against its ground truth;
 - :func:`assert_accuracy` ``(study_or_estimator, drive=None, *, name=None, ate_max=None,
-  ate_aligned_max=None, t_rel_max=None, **run_drive_kwargs)``.
+  ate_aligned_max=None, t_rel_max=None, **run_drive_kwargs)``;
+- :func:`assert_folder_consistent` ``(folder, name=None, *, what=("pose", "landmark"),
+  max_failed_runs=0)``: a saved ``vislam nees`` folder (read with ``vislam.load_results``) held
+  to the same bounds, so a test can pin a study run once; :func:`folder_checks` its checks.
 
 Every check is a :class:`Check` (``study.consistency(name, what)``, ``study.agreement(name)``,
 ``drive_study.accuracy(name, ...)``), whose ``message`` states the figure, the bounds and the
@@ -43,6 +46,7 @@ from vislam.eval.testing import (
     monte_carlo,
     run_drive,
 )
+from vislam.eval.folder_checks import assert_folder_consistent, folder_checks
 
 __all__ = [
     "NEAR_FIELD",
@@ -52,7 +56,9 @@ __all__ = [
     "MonteCarloStudy",
     "assert_accuracy",
     "assert_agrees_with_smoother",
+    "assert_folder_consistent",
     "assert_nees_consistent",
+    "folder_checks",
     "monte_carlo",
     "run_drive",
 ]
