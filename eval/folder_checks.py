@@ -67,3 +67,6 @@ def assert_folder_consistent(folder: str | os.PathLike, name: str | None = None,
     if bad:
         raise AssertionError("\n".join(c.message for c in bad))
     return checks
+
+
+__all__ = ["assert_folder_consistent", "folder_checks"]
