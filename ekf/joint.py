@@ -414,14 +414,6 @@ class JointState:
             self.anchor_p = self.anchor_p[keep_lm]
         self.slot[self.lm_track] = np.arange(self.n_landmarks)
 
-    def flush(self) -> None:
-        """Move every active landmark to the map (end of the run)."""
-        if self.n_landmarks:
-            slots = np.arange(self.n_landmarks)
-            self.map_mean[self.lm_track], self.map_cov[self.lm_track] = self.world_landmarks(slots)
-        if self.retired is not None and self.retired.n:
-            self.map_mean[self.retired.track], self.map_cov[self.retired.track] = self.retired.world(self.P)
-
     @property
     def state_dim(self) -> int:
         """Rows of the joint covariance, retired landmarks included."""

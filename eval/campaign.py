@@ -69,12 +69,12 @@ import tempfile
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from vislam.eval.consistency import POSE_NEES_BAND
+from vislam.eval.consistency import (POSE_NEES_BAND, VERDICT_ABOVE, VERDICT_BELOW, VERDICT_INSIDE,
+                                     VERDICT_WORDS)
 from vislam.eval.simulate import SimConfig, SimResult, simulate, simulation_stats
 
 #: The estimators of a drive, in the order they are shown; the first is the baseline.
@@ -388,8 +388,8 @@ def assess(figures: Mapping[str, EstimatorFigures]) -> tuple[AssertionResult, As
             continue
         good = lo <= value <= hi
         ok &= good
-        word = "inside" if good else ("above (overconfident)" if value > hi else
-                                      "below (underconfident)")
+        word = VERDICT_WORDS[VERDICT_INSIDE if good else
+                             VERDICT_ABOVE if value > hi else VERDICT_BELOW]
         lines.append(f"{name} pose NEES {value:.3g}, band [{lo:.2f}, {hi:.2f}]: {word}")
     return ate, AssertionResult("nees", ok, tuple(lines))
 

@@ -91,7 +91,6 @@ from vislam.eval.sim_config import (
     KITTI_CAM_T_IMU,
     KITTI_CAMERA_HEIGHT,
     KITTI_K,
-    SIM_UPPER_BOUNDS,
     SimConfig,
 )
 from vislam.eval.sim_drawing import (
