@@ -36,6 +36,9 @@ LANDMARK_DOF = 3
 VERDICT_INSIDE = "inside"
 VERDICT_ABOVE = "above"  # overconfident
 VERDICT_BELOW = "below"  # underconfident
+#: Each verdict in words, as the checks and reports say it.
+VERDICT_WORDS = {VERDICT_INSIDE: "inside", VERDICT_ABOVE: "above (overconfident)",
+                 VERDICT_BELOW: "below (underconfident)"}
 
 
 def chi2_bounds(n_runs: int, dof: int, probability: float = 0.95) -> tuple[float, float]:

@@ -9,12 +9,10 @@ from __future__ import annotations
 import math
 import os
 
-from vislam.eval.consistency import VERDICT_INSIDE
+from vislam.eval.consistency import VERDICT_INSIDE, VERDICT_WORDS
 from vislam.eval.results import NeesEstimatorResult, load_results
 from vislam.eval.testing import Check
 
-#: The verdicts of nees.json, in words.
-_WHY = {"inside": "inside", "above": "above (overconfident)", "below": "below (underconfident)"}
 
 
 def _check(row: NeesEstimatorResult, what: str, max_failed_runs: int) -> Check:
@@ -27,7 +25,7 @@ def _check(row: NeesEstimatorResult, what: str, max_failed_runs: int) -> Check:
                      f"{row.name}: {quantity}: not in the folder")
     lo, hi = bounds
     line = (f"{row.name}: {quantity} {value:.2f} (saved study), 95 % bounds [{lo:.2f}, {hi:.2f}]: "
-            f"{_WHY.get(verdict, verdict)}")
+            f"{VERDICT_WORDS.get(verdict, verdict)}")
     ok = verdict == VERDICT_INSIDE
     if row.runs_failed > max_failed_runs:
         ok, verdict = False, "failed"

@@ -53,9 +53,8 @@ from vislam.ekf.config import FilterConfig
 from vislam.eval.consistency import (
     LANDMARK_DOF,
     POSE_DOF,
-    VERDICT_ABOVE,
-    VERDICT_BELOW,
     VERDICT_INSIDE,
+    VERDICT_WORDS,
     AneesResult,
     anees,
 )
@@ -87,8 +86,6 @@ NEAR_FIELD: dict[str, Any] = {"max_depth": 25.0, "far_fraction": 0.0}
 #: Probability of the 1-D 3-sigma interval, chi2.cdf(9, 1) = 0.9973.
 THREE_SIGMA = float(chi2.cdf(9.0, 1))
 
-_WHY = {VERDICT_ABOVE: "above (overconfident)", VERDICT_BELOW: "below (underconfident)",
-        VERDICT_INSIDE: "inside"}
 
 
 # --- checks ----------------------------------------------------------------------------------
@@ -212,7 +209,7 @@ class MonteCarloStudy:
         unit = "steps" if what == "pose" else "landmarks"
         verdict = res.verdict if res.verdict is not None else "missing"
         line = (f"{label}: {quantity} {res.mean:.2f} over {res.n_runs} runs x {items} {unit}, "
-                f"{pct} bounds [{lo:.2f}, {hi:.2f}]: {_WHY.get(verdict, verdict)}")
+                f"{pct} bounds [{lo:.2f}, {hi:.2f}]: {VERDICT_WORDS.get(verdict, verdict)}")
         ok = verdict == VERDICT_INSIDE
         if failed > max_failed_runs:
             ok, verdict = False, "failed"
