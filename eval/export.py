@@ -23,13 +23,12 @@ import io
 import os
 import tempfile
 import zipfile
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-
 from vislam.ekf.errors import InputError
 
 #: Number format of the text writers: 17 significant digits round-trip a float64 exactly.
@@ -179,7 +178,7 @@ _TUM_COLUMNS = "t x y z qx qy qz qw"
 _EUROC_COLUMNS = "timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z"
 
 
-def _text_lines(path: str | os.PathLike, what: str, delimiter: str | None = None):
+def text_lines(path: str | os.PathLike, what: str, delimiter: str | None = None):
     """(line number, fields) of every line of the text file ``path`` that is neither blank nor
     a ``#`` comment; fields split at ``delimiter`` (whitespace when None) and stripped."""
     from vislam.eval.safe_reading import read_text
@@ -231,7 +230,7 @@ def _numeric_lines(path, what: str, n_cols: int, expected: str, hint=None, empty
     their line numbers (N,); a line of another width is an InputError saying ``expected``
     (and ``hint(fields)``), a file without data lines one saying it has ``empty``."""
     rows, lines = [], []
-    for number, fields in _text_lines(path, what):
+    for number, fields in text_lines(path, what):
         if len(fields) != n_cols:
             raise _column_error(path, number, len(fields), expected,
                                 hint(fields) if hint else "")
@@ -315,8 +314,18 @@ def read_euroc(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndar
     quaternion scalar first; further columns, e.g. velocities and biases, are ignored; lines
     starting with ``#`` are headers). Returns times in seconds (T,) strictly increasing, poses
     (T, 4, 4) and line numbers (T,); every fault is a one-line InputError naming the line."""
+    times, poses, lines, _ = read_euroc_state(path)
+    return times, poses, lines
+
+
+def read_euroc_state(path: str | os.PathLike
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`read_euroc` and, where every line has the 17 columns of EuRoC's state ground
+    truth (and OpenVINS's), the state (T, 9): velocity ``v_x, v_y, v_z`` (m/s, world frame),
+    gyro bias ``b_w`` (rad/s) and accelerometer bias ``b_a`` (m/s^2); else None."""
     times, rows, lines = [], [], []
-    for number, fields in _text_lines(path, "EuRoC CSV file", delimiter=","):
+    widths = set()
+    for number, fields in text_lines(path, "EuRoC CSV file", delimiter=","):
         if len(fields) < 8:
             hint = "; a TUM file? give --format tum" if len(fields) == 1 else ""
             raise _column_error(path, number, len(fields), f"at least 8 ({_EUROC_COLUMNS})", hint)
@@ -325,7 +334,9 @@ def read_euroc(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndar
             t = int(stamp) / 10**9  # integer nanoseconds: exact division, correctly rounded
         except ValueError:
             t = _numbers(path, number, [stamp])[0] / 1e9
-        rows.append(_numbers(path, number, fields[1:8]))
+        width = 17 if len(fields) >= 17 else 8
+        widths.add(width)
+        rows.append(_numbers(path, number, fields[1:width]) + [np.nan] * (17 - width))
         times.append(t)
         lines.append(number)
     if not rows:
@@ -335,18 +346,27 @@ def read_euroc(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndar
     _check_increasing(path, times, lines)
     _check_translations(path, data[:, 0:3], lines)
     R = quaternion_rotations(path, data[:, [4, 5, 6, 3]], lines)  # w x y z -> x y z w
-    return times, _poses_from(R, data[:, 0:3]), lines
+    state = data[:, 7:16].copy() if widths == {17} else None
+    return times, _poses_from(R, data[:, 0:3]), lines, state
 
 
-def write_euroc(path: str | os.PathLike, timestamps: np.ndarray, poses: np.ndarray) -> Path:
+def write_euroc(path: str | os.PathLike, timestamps: np.ndarray, poses: np.ndarray,
+                state: np.ndarray | None = None) -> Path:
     """Write poses (T, 4, 4) with their times (T,, seconds) as an EuRoC CSV (header line, then
-    ``timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z``; times rounded to whole ns)."""
+    ``timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z``; times rounded to whole ns), and with
+    ``state`` (T, 9) the 17 columns of EuRoC's state ground truth (velocity, gyro bias,
+    accelerometer bias: :func:`read_euroc_state`)."""
     poses = _check_poses(poses, str(path))
     timestamps = _times_for(path, timestamps, poses)
     q = Rotation.from_matrix(poses[:, :3, :3]).as_quat()
-    lines = ["#timestamp [ns],p_x [m],p_y [m],p_z [m],q_w [],q_x [],q_y [],q_z []"]
-    for t, p, qq in zip(timestamps, poses[:, :3, 3], q):
-        numbers = [*p, qq[3], qq[0], qq[1], qq[2]]
+    header = "#timestamp [ns],p_x [m],p_y [m],p_z [m],q_w [],q_x [],q_y [],q_z []"
+    if state is not None:
+        state = np.asarray(state, dtype=float).reshape(poses.shape[0], 9)
+        header += (",v_x [m s^-1],v_y [m s^-1],v_z [m s^-1],b_w_x [rad s^-1],b_w_y [rad s^-1],"
+                   "b_w_z [rad s^-1],b_a_x [m s^-2],b_a_y [m s^-2],b_a_z [m s^-2]")
+    lines = [header]
+    for i, (t, p, qq) in enumerate(zip(timestamps, poses[:, :3, 3], q)):
+        numbers = [*p, qq[3], qq[0], qq[1], qq[2]] + ([] if state is None else list(state[i]))
         lines.append(",".join([str(round(t * 1e9))] + [repr(float(x)) for x in numbers]))
     text = "\n".join(lines) + "\n"
     return atomic_write(path, lambda fh: fh.write(text.encode()))

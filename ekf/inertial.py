@@ -1,0 +1,127 @@
+"""A raw-IMU drive: :class:`InertialDrive`, beside the velocity drive :class:`ekf.sequence.Sequence`.
+
+What a visual-inertial system records (EuRoC, TUM-VI, a user's own rig):
+
+- the IMU's samples at their own rate (:class:`ekf.filter.ImuSamples`: time, specific force,
+  angular rate, in the IMU frame; no gravity removed);
+- camera frames at their times, with feature tracks (:class:`ekf.sequence.Observations`,
+  the same sparse rows as a velocity drive: four pixel columns for stereo, two for monocular);
+- the calibration (:class:`InertialCalibration`): the left camera's intrinsics ``K`` with an
+  optional lens distortion, the stereo baseline (None for a single camera), the camera-IMU
+  extrinsic, the IMU's noise densities and bias random walks (:class:`ImuNoise`, the data
+  sheet's figures) and the magnitude of gravity.
+
+Times are seconds since ``time_origin_ns`` (the first IMU sample's stamp, in integer
+nanoseconds as ASL files give it): absolute stamps of 1.4e9 s would keep only 0.2 us in a
+float. Conventions are today's: ``cam_T_imu`` takes IMU-frame points to the camera frame
+(``p_cam = cam_T_imu @ p_imu``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from vislam.ekf.filter import ImuSamples
+from vislam.ekf.geometry import se3_inv
+from vislam.ekf.sequence import Observations
+
+#: Lens distortion models a calibration may carry, with their number of coefficients:
+#: ``radtan`` (k1, k2, p1, p2: OpenCV's / Kalibr's radial-tangential) and ``equidistant``
+#: (k1..k4: Kalibr's fisheye). ``none``: pixels of an ideal pinhole (undistorted tracks).
+DISTORTION_MODELS = {"none": 0, "radtan": 4, "equidistant": 4}
+
+#: Standard gravity, m/s^2 (the default magnitude where a source gives none).
+STANDARD_GRAVITY = 9.80665
+
+
+@dataclass(frozen=True)
+class ImuNoise:
+    """The IMU's continuous-time noise model (Kalibr's / the ASL ``sensor.yaml`` convention).
+
+    ``gyro_noise_density`` rad/s/sqrt(Hz) and ``accel_noise_density`` m/s^2/sqrt(Hz): white
+    noise of the samples (a sample at rate f has sigma ``density * sqrt(f)``);
+    ``gyro_random_walk`` rad/s^2/sqrt(Hz) and ``accel_random_walk`` m/s^3/sqrt(Hz): the
+    biases' random walk (over dt their change has sigma ``walk * sqrt(dt)``)."""
+
+    gyro_noise_density: float
+    gyro_random_walk: float
+    accel_noise_density: float
+    accel_random_walk: float
+
+    def as_array(self) -> np.ndarray:
+        """``[gyro noise, gyro walk, accel noise, accel walk]`` (the file form's ``imu_noise``)."""
+        return np.array([self.gyro_noise_density, self.gyro_random_walk,
+                         self.accel_noise_density, self.accel_random_walk])
+
+    @classmethod
+    def from_array(cls, values) -> ImuNoise:
+        g, gw, a, aw = (float(v) for v in np.asarray(values, dtype=float).ravel())
+        return cls(g, gw, a, aw)
+
+
+@dataclass(frozen=True)
+class InertialCalibration:
+    """Camera and IMU calibration of a raw-IMU drive (module docstring).
+
+    ``K`` (3, 3) the left camera's intrinsics (pixels); ``distortion_model`` one of
+    :data:`DISTORTION_MODELS` with its ``distortion`` coefficients; ``baseline`` the stereo
+    baseline in metres (rectified pair, right camera along the left's +x), None for one camera;
+    ``cam_T_imu`` (4, 4); ``noise`` the IMU's data-sheet noise; ``gravity`` m/s^2."""
+
+    K: np.ndarray
+    cam_T_imu: np.ndarray
+    noise: ImuNoise
+    baseline: float | None = None
+    distortion_model: str = "none"
+    distortion: tuple[float, ...] = ()
+    gravity: float = STANDARD_GRAVITY
+
+    @property
+    def stereo(self) -> bool:
+        return self.baseline is not None
+
+    @property
+    def imu_T_cam(self) -> np.ndarray:
+        return se3_inv(self.cam_T_imu)
+
+
+@dataclass(frozen=True)
+class InertialDrive:
+    """One raw-IMU drive (module docstring).
+
+    ``timestamps`` (T,) camera frame times, s since ``time_origin_ns``; ``imu`` the whole
+    IMU stream (n samples, strictly increasing times covering every frame); ``obs`` the
+    tracks (``z`` (N, 4) stereo or (N, 2) monocular pixels); ``n_tracks`` the number of track
+    indices; ``track_id`` (n_tracks,) each track's id in the source file."""
+
+    name: str
+    timestamps: np.ndarray
+    imu: ImuSamples
+    obs: Observations
+    n_tracks: int
+    calibration: InertialCalibration
+    time_origin_ns: int = 0
+    track_id: np.ndarray | None = None
+    source: str | None = None
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.timestamps.size)
+
+    @property
+    def stereo(self) -> bool:
+        return self.calibration.stereo
+
+    @property
+    def imu_rate(self) -> float:
+        """Median IMU sample rate, Hz."""
+        return float(1.0 / np.median(np.diff(self.imu.time)))
+
+    def imu_between(self, k: int) -> ImuSamples:
+        """The samples of frame interval ``(t_k-1, t_k]`` with the sample at or before
+        ``t_k-1`` in front (what an integrator needs to cover the whole interval)."""
+        t0, t1 = self.timestamps[k - 1], self.timestamps[k]
+        a = max(int(np.searchsorted(self.imu.time, t0, side="right")) - 1, 0)
+        b = int(np.searchsorted(self.imu.time, t1, side="right"))
+        return ImuSamples(self.imu.time[a:b], self.imu.accel[a:b], self.imu.gyro[a:b])
