@@ -84,7 +84,8 @@ def read_sensor_yaml(path: Path) -> dict:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 2}: " if mark is not None else ""
-        raise InputError(f"{path}: {where}not readable YAML ({getattr(exc, 'problem', exc)})") from None
+        reason = " ".join(str(getattr(exc, "problem", None) or exc).split())[:120]
+        raise InputError(f"{path}: {where}not readable YAML ({reason})") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: not a YAML mapping of sensor keys")
     return data
