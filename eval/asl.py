@@ -18,11 +18,11 @@ Images are not read: the camera tracks come from a **track file** (``--tracks FI
 cam0 moved along its own x axis with the same rotation and intrinsics), one row per
 observation; or gtsam's eqvio csv, whose tracks are undistorted normalised coordinates
 (converted here to pixels of cam0's ideal pinhole). The camera frames are the track file's
-distinct stamps.
+distinct stamps, and the drive is the IMU's stretch that covers them (:func:`cut_to_frames`).
 
 **Checks**, each fault one line naming the file, line and column: IMU stamps strictly
-increasing (duplicates and steps back named), no gap longer than :data:`MAX_GAP_FACTOR` times
-the median interval (named, never interpolated over), every camera frame inside the IMU's
+increasing (duplicates and steps back named), no gap longer than
+:data:`eval.imu_streams.MAX_GAP_FACTOR` times the median interval (named, never interpolated over), every camera frame inside the IMU's
 span, one observation per track and frame, finite values.
 """
 
@@ -42,26 +42,21 @@ from vislam.ekf.inertial import (
     InertialCalibration,
     InertialDrive,
 )
-from vislam.ekf.sequence import Observations
+from vislam.eval.eqvio import is_eqvio_csv, read_eqvio_tracks
+from vislam.eval.imu_streams import (check_gaps, check_unique_observations, cut_to_frames,
+                                     frames_inside_imu, observations, snap_to_samples)
 from vislam.eval.safe_reading import read_text
 from vislam.eval.text_tables import check_increasing, read_table
 
-#: An IMU interval longer than this many median intervals is a gap (a dropped stretch).
-MAX_GAP_FACTOR = 5.0
 #: Largest sensor.yaml read.
 MAX_YAML_BYTES = 2**20
 #: ASL's names of the distortion models -> vislam's (:data:`ekf.inertial.DISTORTION_MODELS`).
 DISTORTION_NAMES = {"radial-tangential": "radtan", "radtan": "radtan", "equidistant": "equidistant",
                     "none": "none"}
-#: A camera stamp this close to an IMU stamp (ns) is the same instant, printed with fewer digits.
-SNAP_NS = 1000
 #: A stereo pair counts as rectified when cam1's rotation against cam0 is below this (rad).
 RECTIFIED_ROTATION = 1e-3
 NOISE_KEYS = ("gyroscope_noise_density", "gyroscope_random_walk",
               "accelerometer_noise_density", "accelerometer_random_walk")
-#: The eqvio csv's sensor (EuRoC's ADIS16448): its noise figures from EuRoC's
-#: ``mav0/imu0/sensor.yaml`` (the manufacturer's), used when the csv is read without its folder.
-EUROC_IMU_NOISE = ImuNoise(1.6968e-04, 1.9393e-05, 2.0e-3, 3.0e-3)
 
 
 def mav_folder(folder: Path) -> Path:
@@ -163,21 +158,6 @@ def read_imu_csv(path: Path) -> tuple[np.ndarray, ImuSamples]:
     return time_ns, ImuSamples(t, table.values[:, 4:7].copy(), table.values[:, 1:4].copy())
 
 
-def check_gaps(path: Path, time_ns: np.ndarray, lines: np.ndarray) -> None:
-    """No IMU interval longer than :data:`MAX_GAP_FACTOR` median intervals."""
-    if time_ns.size < 3:
-        raise InputError(f"{path}: {time_ns.size} IMU sample(s); a drive needs more")
-    steps = np.diff(time_ns)
-    median = float(np.median(steps))
-    bad = np.flatnonzero(steps > MAX_GAP_FACTOR * median)
-    if bad.size:
-        i = int(bad[0])
-        raise InputError(f"{path}: line {int(lines[i + 1])}: a gap of {steps[i] * 1e-9:.4g} s in the "
-                         f"IMU stamps after line {int(lines[i])} (the median interval is "
-                         f"{median * 1e-9:.4g} s); samples are never interpolated over a gap: "
-                         "cut the drive there")
-
-
 def read_track_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A track file: ``time_ns`` (N,), ``track_id`` (N,), ``z`` (N, 2 or 4) pixels, and the
     file line of each row, plus the distinct frame stamps (F,)."""
@@ -188,54 +168,12 @@ def read_track_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
         i = int(np.flatnonzero(track_id < 0)[0])
         raise InputError(f"{path}: line {int(table.lines[i])}, column 2: negative track id "
                          f"{int(track_id[i])} ({what})")
-    _check_unique(path, time_ns, track_id, table.lines)
+    check_unique_observations(path, time_ns, track_id, table.lines)
     return time_ns, track_id, table.values[:, 2:].copy(), table.lines, np.unique(time_ns)
-
-
-def _check_unique(path: Path, time_ns, track_id, lines) -> None:
-    order = np.lexsort((track_id, time_ns))
-    same = (np.diff(time_ns[order]) == 0) & (np.diff(track_id[order]) == 0)
-    if np.any(same):
-        i = int(np.flatnonzero(same)[0])
-        a, b = sorted((int(lines[order[i]]), int(lines[order[i + 1]])))
-        raise InputError(f"{path}: line {b}: track {int(track_id[order[i]])} is observed twice at "
-                         f"the same frame (also line {a})")
-
-
-def observations(frame: np.ndarray, track_id: np.ndarray, z: np.ndarray, n_frames: int
-                 ) -> tuple[Observations, int, np.ndarray]:
-    """Observations with dense track indices (0..M-1 in order of id), M, and the ids."""
-    ids, track = np.unique(track_id, return_inverse=True)
-    frame = np.asarray(frame, dtype=np.int64)
-    order = np.lexsort((track, frame))
-    ptr = np.zeros(n_frames + 1, dtype=np.int64)
-    np.cumsum(np.bincount(frame, minlength=n_frames), out=ptr[1:])
-    obs = Observations(ptr, track[order].astype(np.int64), np.asarray(z, dtype=float)[order])
-    return obs, int(ids.size), ids
-
-
-def snap_to_samples(frame_ns: np.ndarray, imu_ns: np.ndarray) -> np.ndarray:
-    """Frame stamps within :data:`SNAP_NS` of an IMU stamp moved onto it: a file that prints
-    seconds with 7 decimals (the eqvio csv) puts a frame taken with an IMU sample 100 ns off it."""
-    i = np.clip(np.searchsorted(imu_ns, frame_ns), 1, imu_ns.size - 1)
-    nearest = np.where(frame_ns - imu_ns[i - 1] <= imu_ns[i] - frame_ns, imu_ns[i - 1], imu_ns[i])
-    return np.where(np.abs(nearest - frame_ns) <= SNAP_NS, nearest, frame_ns)
-
-
-def frames_inside_imu(path: Path, frame_ns: np.ndarray, imu_ns: np.ndarray) -> None:
-    """Every camera frame inside the IMU's span (an estimator integrates up to each frame)."""
-    outside = np.flatnonzero((frame_ns < imu_ns[0]) | (frame_ns > imu_ns[-1]))
-    if outside.size:
-        t = int(frame_ns[outside[0]])
-        raise InputError(f"{path}: camera frame at {t} ns is outside the IMU's span "
-                         f"[{int(imu_ns[0])}, {int(imu_ns[-1])}] ns ({outside.size} frame(s) outside); "
-                         "cut the tracks to the IMU's span")
 
 
 def read_asl_folder(folder: Path, tracks: Path | None) -> InertialDrive:
     """The drive of an ASL folder with its track file (module docstring)."""
-    from vislam.eval.eqvio import is_eqvio_csv, read_eqvio_tracks
-
     mav = mav_folder(folder)
     imu_yaml, imu_csv, cam0 = mav / "imu0" / "sensor.yaml", mav / "imu0" / "data.csv", mav / "cam0" / "sensor.yaml"
     imu_ns, imu = read_imu_csv(imu_csv)
@@ -254,6 +192,7 @@ def read_asl_folder(folder: Path, tracks: Path | None) -> InertialDrive:
         time_ns, track_id, z, _, frame_ns = read_track_csv(tracks)
         frame_of_row = np.searchsorted(frame_ns, time_ns)
     frames_inside_imu(tracks, frame_ns, imu_ns)
+    imu_ns, imu = cut_to_frames(imu_ns, imu, frame_ns)
     baseline = None
     if z.shape[1] == 4:
         baseline = _rectified_baseline(mav, body_T_cam, K, tracks)

@@ -25,6 +25,7 @@ from vislam.eval.signals import Terminated, raise_terminated
 #: subcommand -> (module under eval.commands, one-line help)
 COMMANDS = {
     "simulate": ("simulate", "write a simulated KITTI-like drive with ground truth"),
+    "convert": ("convert", "write an ASL folder, an eqvio csv or a course drive as vislam's file form"),
     "inspect": ("inspect", "summarise a data file before estimating"),
     "run": ("run", "run one estimator on one sequence"),
     "bench": ("bench", "run every estimator on every sequence and compare"),

@@ -227,7 +227,7 @@ def _angular_velocity(raw: dict[str, np.ndarray], path: Path, T: int) -> np.ndar
 
 
 def validate_sparse(
-    raw: dict[str, np.ndarray], path: Path, T: int
+    raw: dict[str, np.ndarray], path: Path, T: int, negative_is_invalid: bool = True
 ) -> tuple[dict[str, np.ndarray], LoadReport]:
     """The sparse layout's observations, checked: ``obs_frame`` (N,) integers in [0, T),
     ``obs_track`` (N,) non-negative integers, ``obs_pixels`` (N, 4) or (N, 2) finite, the three
@@ -236,7 +236,8 @@ def validate_sparse(
     file, the key, the row and the value. Returns ``obs_frame``, ``obs_track`` (int64),
     ``obs_pixels`` (float64) sorted by (frame, track) with the invalid rows dropped (the dense
     layout's rule: :mod:`eval.loader`), ``n_tracks`` (an int64 scalar), and the
-    :class:`LoadReport`."""
+    :class:`LoadReport`. ``negative_is_invalid`` False keeps rows with negative pixels (tracks
+    of an undistorted ideal pinhole, as raw-IMU drives may hold, reach outside the image)."""
     pixels = raw["obs_pixels"]
     if pixels.dtype.kind not in "biuf":
         raise InputError(f"{path}: key 'obs_pixels' has non-numeric dtype {pixels.dtype}")
@@ -285,6 +286,9 @@ def validate_sparse(
 
     unobserved = np.all(pixels == -1, axis=1)  # the dense layout's marker: not an observation
     invalid = np.any(pixels < 0, axis=1) & ~unobserved
+    if not negative_is_invalid:
+        unobserved[:] = False
+        invalid[:] = False
     report = LoadReport()
     if invalid.any():
         partial = invalid & np.any(pixels == -1, axis=1)

@@ -14,7 +14,7 @@ ay, az, bgx, bgy, bgz, bax, bay, baz, u_norm, v_norm, key, value``.
 
 Stamps are parsed from their decimal text to integer nanoseconds (a float keeps only 0.2 us at
 1.4e9 s). The file carries no IMU noise figures (its ``eqf.input_var_*`` are one filter's tuned
-values, not the sensor's): :data:`eval.asl.EUROC_IMU_NOISE`, the data sheet of the EuRoC IMU it
+values, not the sensor's): :data:`EUROC_IMU_NOISE`, the data sheet of the EuRoC IMU it
 was recorded with, is used, or the noise of an ASL folder read with it.
 """
 
@@ -30,9 +30,11 @@ from scipy.spatial.transform import Rotation
 from vislam.ekf.errors import InputError
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.geometry import se3_inv
-from vislam.ekf.inertial import STANDARD_GRAVITY, InertialCalibration, InertialDrive
+from vislam.ekf.inertial import STANDARD_GRAVITY, ImuNoise, InertialCalibration, InertialDrive
 from vislam.eval.export import MAX_TEXT_BYTES
 from vislam.eval.safe_reading import read_text
+from vislam.eval.imu_streams import (check_gaps, check_unique_observations, frames_inside_imu,
+                                     observations)
 from vislam.eval.text_tables import check_increasing
 
 #: The file's name inside the gtsam package (``vislam convert eqvio``).
@@ -41,6 +43,9 @@ COLUMNS = ("row_type", "t_abs", "t_rel", "seq", "frame_idx", "landmark_id", "gx"
            "ax", "ay", "az", "bgx", "bgy", "bgz", "bax", "bay", "baz", "u_norm", "v_norm", "key",
            "value")
 META_CAMERA = ("camera_fx", "camera_fy", "camera_cx", "camera_cy")
+#: The eqvio csv's sensor (EuRoC's ADIS16448): its noise figures from EuRoC's
+#: ``mav0/imu0/sensor.yaml`` (the manufacturer's), used when the csv is read without its folder.
+EUROC_IMU_NOISE = ImuNoise(1.6968e-04, 1.9393e-05, 2.0e-3, 3.0e-3)
 META_T_CI = ("T_ci_tx", "T_ci_ty", "T_ci_tz", "T_ci_qw", "T_ci_qx", "T_ci_qy", "T_ci_qz")
 
 
@@ -176,22 +181,13 @@ def _tracks(rows: _Rows, K: np.ndarray):
         bad = int(np.flatnonzero(frame_idx[first] != frame_idx[first][0] + np.arange(frame_ns.size))[0])
         raise InputError(f"{rows.path}: line {int(lines[first[bad]])}, column frame_idx: frame "
                          f"{int(frame_idx[first[bad]])} does not follow its stamps' order")
-    from vislam.eval.asl import _check_unique
-
-    _check_unique(rows.path, stamp, track_id, lines)
+    check_unique_observations(rows.path, stamp, track_id, lines)
     pixels = uv * np.array([K[0, 0], K[1, 1]]) + np.array([K[0, 2], K[1, 2]])
     return frame_ns, frame_of_row, track_id, pixels
 
 
 def read_eqvio_drive(path="eqvio") -> InertialDrive:
     """The whole drive of the eqvio csv: its IMU rows, tracks and camera (module docstring)."""
-    from vislam.eval.asl import (
-        EUROC_IMU_NOISE,
-        check_gaps,
-        frames_inside_imu,
-        observations,
-    )
-
     path = packaged_eqvio() if str(path) == "eqvio" else Path(path)
     rows = _Rows(path)
     K, cam_T_imu = rows.camera()

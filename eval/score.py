@@ -244,7 +244,7 @@ def positions_in(sorted_frames: np.ndarray, frames: np.ndarray) -> tuple[np.ndar
 def covariances_for(cov, traj: Trajectory, assoc: Association, frame_times: np.ndarray
                     ) -> tuple[np.ndarray, int]:
     """The covariance (n, 6, 6) of each associated frame from ``cov``
-    (eval.export.PoseCovariances), NaN where it has none, and how many frames have one.
+    (eval.covariance_files.PoseCovariances), NaN where it has none, and how many frames have one.
     Covariances with times are matched to frames by the association rule (same ``t_max_diff``
     and ``t_offset``); without times entry i belongs to pose i of ``traj``. InputError when a
     time-less file's count differs from the trajectory's, or when no frame gets a covariance."""
@@ -377,7 +377,7 @@ def score(traj: Trajectory, bs, *, config, smoother, cov=None, t_max_diff: float
           t_offset: float = 0.0, align: str = "se3", reference: bool = True,
           show_progress: bool = False, assoc: Association | None = None) -> dict:
     """Score ``traj`` on the drive ``bs`` (:func:`load_drive`); ``cov`` the pose covariances
-    (eval.export.PoseCovariances) or None; ``reference`` False skips the smoother. Returns
+    (eval.covariance_files.PoseCovariances) or None; ``reference`` False skips the smoother. Returns
     the score.json content: what was scored and how (trajectory, data, covariance,
     association, alignment, reference, model), ``scores`` (the trajectory's figures, the
     benchmark's keys and ``vs_smoother``) and ``sequence`` (the benchmark's results.json entry

@@ -115,11 +115,14 @@ def assert_input_error(call, *fragments: str) -> str:
 def test_asl_folder_reads_imu_calibration_and_tracks(tmp_path):
     root, tracks = write_asl(tmp_path)
     drive = read_asl_folder(root, tracks)
-    assert drive.imu.time.size == N_IMU and drive.time_origin_ns == T0
+    n_frames = N_IMU // FRAME_EVERY - 2
+    # the IMU cut to the frames' span (frames 1..n at every 10th sample), time 0 at the first frame
+    assert drive.imu.time.size == (n_frames - 1) * FRAME_EVERY + 1
+    assert drive.time_origin_ns == T0 + FRAME_EVERY * STEP
     np.testing.assert_allclose(np.diff(drive.imu.time), STEP * 1e-9)
-    assert drive.n_frames == N_IMU // FRAME_EVERY - 2 and drive.n_tracks == 5
+    assert drive.n_frames == n_frames and drive.n_tracks == 5
     assert drive.obs.z.shape == (len(track_rows()), 2) and not drive.stereo
-    np.testing.assert_allclose(drive.timestamps, np.arange(1, N_IMU // FRAME_EVERY - 1) * 0.05)
+    np.testing.assert_allclose(drive.timestamps, np.arange(n_frames) * 0.05, atol=1e-12)
     body_T_cam = np.array([[0, -1, 0, -0.02], [1, 0, 0, -0.06], [0, 0, 1, 0.01], [0, 0, 0, 1.0]])
     np.testing.assert_allclose(drive.calibration.cam_T_imu, se3_inv(body_T_cam))
     assert drive.calibration.distortion_model == "radtan"

@@ -12,10 +12,9 @@ import pytest
 from vislam.ekf.errors import InputError
 from vislam.ekf.estimate import Estimate
 from vislam.eval.cli import main
+from vislam.eval.covariance_files import read_pose_covariances, write_covariances_text
 from vislam.eval.export import (
     read_euroc,
-    read_pose_covariances,
-    write_covariances_text,
     write_euroc,
     write_kitti,
     write_tum,

@@ -70,7 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from vislam.ekf.errors import InputError
     from vislam.eval.atomic import write_json, write_text
-    from vislam.eval.export import read_pose_covariances
+    from vislam.eval.covariance_files import read_pose_covariances
     from vislam.eval.commands.bench import drives_under_model
     from vislam.eval.commands.options import (
         environment_settings,

@@ -1,0 +1,105 @@
+"""`vislam convert` (issue 37): ASL folders, the eqvio csv and course drives into vislam's file
+form, the ground truth beside it, nothing replaced, every fault one line and exit 2."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vislam.eval.cli import main
+from vislam.eval.inertial_files import is_inertial_file, load_inertial_drive, save_inertial_drive
+from vislam.eval.trajectory_files import read_trajectory
+from tests.test_inertial_readers import STEP, T0, write_asl
+
+
+def convert(*argv: str) -> int:
+    return main(["convert", *argv])
+
+
+def write_gt(path, n=40):
+    rows = ["#time(ns),px,py,pz,qw,qx,qy,qz,vx,vy,vz,bwx,bwy,bwz,bax,bay,baz"]
+    for i in range(n):
+        rows.append(",".join([str(T0 + i * 2 * STEP), f"{0.01 * i}", "0", "1", "1", "0", "0", "0"]
+                             + ["0.2", "0", "0", "0.001", "0", "0", "0", "0.01", "0"]))
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_asl_folder_with_tracks_and_ground_truth(tmp_path, capsys):
+    root, tracks = write_asl(tmp_path / "asl")
+    gt = write_gt(tmp_path / "gt.csv")
+    out = tmp_path / "drives" / "flight.npz"
+    assert convert(str(root), "--tracks", str(tracks), "--gt", str(gt), "--out", str(out)) == 0
+    assert "monocular tracks" in capsys.readouterr().out
+    assert is_inertial_file(out)
+    drive = load_inertial_drive(out)
+    assert drive.n_tracks == 5 and not drive.stereo and drive.calibration.distortion_model == "radtan"
+    # the IMU is cut to the frames' span: one sample at or before the first frame, after the last
+    assert drive.imu.time[0] <= drive.timestamps[0] and drive.imu.time[-1] >= drive.timestamps[-1]
+    assert drive.imu.time.size == int(round((drive.timestamps[-1] - drive.timestamps[0]) / (STEP * 1e-9))) + 1
+    truth = read_trajectory(tmp_path / "drives" / "groundtruth" / "flight.csv")
+    assert truth.state is not None and len(truth) > 0
+    np.testing.assert_allclose(truth.velocity[:, 0], 0.2)
+
+
+def test_refuses_to_replace_and_leaves_nothing(tmp_path, capsys):
+    root, tracks = write_asl(tmp_path / "asl")
+    out = tmp_path / "flight.npz"
+    out.write_bytes(b"the user's file")
+    assert convert(str(root), "--tracks", str(tracks), "--out", str(out)) == 2
+    assert "already exists" in capsys.readouterr().err and out.read_bytes() == b"the user's file"
+    # a ground truth that fails leaves no drive file behind
+    bad_gt = tmp_path / "gt.csv"
+    bad_gt.write_text("#t\n1,0,0,0,1,0,0,0\n1,0,0,0,1,0,0,0\n")
+    out2 = tmp_path / "other.npz"
+    assert convert(str(root), "--tracks", str(tracks), "--gt", str(bad_gt), "--out", str(out2)) == 2
+    err = capsys.readouterr().err
+    assert "gt.csv: line 3" in err and err.count("\n") == 1
+    assert not out2.exists() and not (tmp_path / "groundtruth").exists()
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["nowhere", "--out", "x.npz"], "not an ASL folder, a .npz drive or an eqvio csv"),
+    (["eqvio", "--out", "x.txt"], "--out must name a .npz file"),
+    (["eqvio", "--tracks", "t.csv", "--out", "x.npz"], "--tracks is for an ASL folder"),
+])
+def test_bad_arguments(tmp_path, capsys, monkeypatch, argv, fragment):
+    monkeypatch.chdir(tmp_path)
+    assert convert(*argv) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and err.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_asl_folder_without_tracks_says_how(tmp_path, capsys):
+    root, _ = write_asl(tmp_path / "asl")
+    assert convert(str(root), "--out", str(tmp_path / "f.npz")) == 2
+    assert "--tracks FILE" in capsys.readouterr().err
+
+
+def test_eqvio_round_trip(tmp_path, capsys):
+    out = tmp_path / "eqvio.npz"
+    assert convert("eqvio", "--out", str(out)) == 0
+    assert "601 frames, 307 monocular tracks, 13316 observations" in capsys.readouterr().out
+    drive = load_inertial_drive(out)
+    again = tmp_path / "again.npz"
+    save_inertial_drive(again, drive)
+    assert again.read_bytes() == out.read_bytes()  # byte-reproducible
+
+
+def test_course_drive_to_sparse_layout(tmp_path, capsys):
+    from vislam.eval.loader import load_sequence, save_sequence
+    from vislam.eval.simulate import SimConfig, simulate
+
+    seq = simulate(SimConfig(n_frames=12, seed=3)).sequence
+    source = tmp_path / "in" / "drive.npz"
+    save_sequence(source, seq)
+    (tmp_path / "in" / "groundtruth").mkdir()
+    (tmp_path / "in" / "groundtruth" / "drive.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
+    out = tmp_path / "out" / "drive.npz"
+    assert convert(str(source), "--out", str(out)) == 0
+    back = load_sequence(out)
+    np.testing.assert_array_equal(back.obs.z, seq.obs.z)
+    np.testing.assert_array_equal(back.linear_velocity, seq.linear_velocity)
+    assert (tmp_path / "out" / "groundtruth" / "drive.txt").read_text().startswith("1 0 0 0")
+    assert not is_inertial_file(out)
