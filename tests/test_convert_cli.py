@@ -103,3 +103,43 @@ def test_course_drive_to_sparse_layout(tmp_path, capsys):
     np.testing.assert_array_equal(back.linear_velocity, seq.linear_velocity)
     assert (tmp_path / "out" / "groundtruth" / "drive.txt").read_text().startswith("1 0 0 0")
     assert not is_inertial_file(out)
+
+
+def test_inspect_a_raw_imu_drive(tmp_path, capsys):
+    root, tracks = write_asl(tmp_path / "asl")
+    gt = write_gt(tmp_path / "gt.csv")
+    out = tmp_path / "drives" / "flight.npz"
+    assert convert(str(root), "--tracks", str(tracks), "--gt", str(gt), "--out", str(out)) == 0
+    capsys.readouterr()
+    assert main(["inspect", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "drive: raw IMU" in text and "200.0 Hz" in text and "monocular" in text
+    assert "ground truth: " in text and "covers 7 of 10 frames" in text and "with velocity and biases" in text
+    assert main(["inspect", str(out), "--check"]) == 2
+    assert "raw-IMU drive" in capsys.readouterr().err
+
+
+def test_ground_truth_at_frames_in_the_estimates_world():
+    from scipy.spatial.transform import Rotation
+
+    from vislam.eval.inertial_truth import at_frames, heading_frame
+    from vislam.eval.trajectory_files import TimedTrajectory
+
+    times = np.array([10.0, 10.1, 10.2, 10.5])
+    poses = np.tile(np.eye(4), (4, 1, 1))
+    poses[:, :3, :3] = Rotation.from_euler("ZYX", [[0.3, 0.1, 0.0], [0.5, 0.1, 0.0],
+                                                   [0.7, 0.1, 0.0], [0.9, 0.1, 0.0]]).as_matrix()
+    poses[:, :3, 3] = [[1, 2, 3], [2, 2, 3], [3, 2, 3], [4, 2, 3]]
+    traj = TimedTrajectory(times, poses, "gt", "asl", np.tile(np.arange(9.0), (4, 1)))
+    frames, got, state = at_frames(traj, np.array([10.0, 10.05, 10.2 + 4e-6, 10.35, 11.0]))
+    # exact, interpolated, the same instant, a gap of 0.3 s (not interpolated), beyond the end
+    assert list(frames) == [0, 1, 2]
+    np.testing.assert_allclose(got[1, :3, 3], [1.5, 2, 3])
+    np.testing.assert_allclose(Rotation.from_matrix(got[1, :3, :3]).as_euler("ZYX"), [0.4, 0.1, 0.0],
+                               atol=1e-12)
+    np.testing.assert_allclose(got[2], poses[2])
+    Y = heading_frame(poses[0])
+    local = np.linalg.inv(Y) @ poses[0]
+    # in the estimates' world the first pose has no heading and sits at the origin; pitch stays
+    np.testing.assert_allclose(local[:3, 3], 0, atol=1e-12)
+    np.testing.assert_allclose(Rotation.from_matrix(local[:3, :3]).as_euler("ZYX"), [0, 0.1, 0], atol=1e-12)

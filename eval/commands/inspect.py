@@ -40,7 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", type=Path, help="drive in the data format (.npz)")
     parser.add_argument(
         "--gt", type=Path, default=None,
-        help="ground-truth pose file (KITTI format); default DIR/groundtruth/NAME.txt",
+        help="ground-truth file (KITTI poses; for a raw-IMU drive ASL/OpenVINS csv or TUM); "
+             "default DIR/groundtruth/NAME.txt (NAME.csv for a raw-IMU drive)",
     )
     parser.add_argument(
         "--check", action="store_true",
@@ -227,7 +228,19 @@ def check_lines(path: Path, config, settings, model=None, *, stretch_s: float = 
 
 
 def run(args: argparse.Namespace) -> int:
+    from vislam.eval.inertial_files import is_inertial_file
+
     check = _check_inputs(args)
+    if is_inertial_file(args.file):
+        if check is not None:
+            from vislam.ekf.errors import InputError
+
+            raise InputError(f"{args.file}: --check compares velocities with vision; this is a "
+                             "raw-IMU drive")
+        from vislam.eval.commands.inspect_inertial import summarise_inertial
+
+        print("\n".join(summarise_inertial(args.file, args.gt)))
+        return 0
     for line in summarise(args.file, args.gt):
         print(line)
     if check is not None:

@@ -1,0 +1,130 @@
+"""Ground truth of a raw-IMU drive at its camera frames, in the frame its estimates use.
+
+A raw-IMU drive's ground truth is a time-stamped trajectory of the body (IMU) in a
+gravity-aligned world (EuRoC's Vicon frame: z up), read by :func:`eval.trajectory_files.
+read_trajectory` from ``DIR/groundtruth/NAME.csv`` (what ``vislam convert`` writes) or a file
+given with ``--gt``. Here it becomes an :class:`eval.groundtruth.GroundTruth`:
+
+- **at the camera frames**: a pose whose stamp is within :data:`SAME_INSTANT_S` of a frame is
+  taken as it is; otherwise it is interpolated between the neighbours on both sides (position
+  linearly, rotation by slerp) when they are at most :data:`MAX_INTERPOLATION_GAP_S` apart; a
+  frame without is left out (the ground truth "covers" fewer frames);
+- **in the estimates' world** (:data:`RAW_IMU_WORLD`): gravity-aligned, z up, origin at the
+  IMU at frame 0, x along the IMU's heading at frame 0 (its x axis projected on the horizontal
+  plane). ``T_world_gt = Y^-1 T_file`` with ``Y`` the yaw-and-position of the IMU at frame 0.
+  Roll and pitch stay absolute (gravity fixes them), so a pose NEES needs no alignment beyond
+  the gauge an estimator fixes itself; ATE aligns in yaw and translation (4-DoF).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from vislam.ekf.errors import InputError
+from vislam.ekf.inertial import InertialDrive
+from vislam.eval.groundtruth import GroundTruth
+from vislam.eval.trajectory_files import TimedTrajectory, read_trajectory
+
+#: Stamps closer than this are the same instant (files print seconds with 6-9 decimals).
+SAME_INSTANT_S = 1e-5
+#: Interpolate only between ground-truth poses at most this far apart (s).
+MAX_INTERPOLATION_GAP_S = 0.1
+#: The world frame of raw-IMU estimates, in words (reports and docs).
+RAW_IMU_WORLD = ("gravity-aligned (z up), origin at the IMU at frame 0, x along its heading "
+                 "at frame 0")
+
+
+@dataclass(frozen=True)
+class InertialTruth:
+    """The ground truth at the camera frames (:class:`GroundTruth`, poses in the estimates'
+    world) and, where the file has them, the velocity in that world (n, 3) and the biases."""
+
+    truth: GroundTruth
+    velocity: np.ndarray | None = None
+    gyro_bias: np.ndarray | None = None
+    accel_bias: np.ndarray | None = None
+
+
+def inertial_truth_path(npz_path: str | os.PathLike) -> Path:
+    """``DIR/groundtruth/NAME.csv`` for ``DIR/NAME.npz``."""
+    p = Path(npz_path)
+    return p.parent / "groundtruth" / f"{p.stem}.csv"
+
+
+def heading_frame(pose: np.ndarray) -> np.ndarray:
+    """``Y`` (4, 4): the rotation about z by the heading of ``pose``'s x axis, and its position."""
+    R = pose[:3, :3]
+    yaw = float(np.arctan2(R[1, 0], R[0, 0]))
+    Y = np.eye(4)
+    Y[:3, :3] = Rotation.from_euler("z", yaw).as_matrix()
+    Y[:3, 3] = pose[:3, 3]
+    return Y
+
+
+def at_frames(traj: TimedTrajectory, frame_times: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Frames covered, poses (n, 4, 4) and state (n, 9) or None at the absolute ``frame_times``
+    (module docstring)."""
+    t = traj.times
+    i = np.clip(np.searchsorted(t, frame_times), 1, max(t.size - 1, 1))
+    if t.size == 1:
+        exact = np.abs(frame_times - t[0]) <= SAME_INSTANT_S
+        idx = np.flatnonzero(exact)
+        return idx, traj.poses[np.zeros(idx.size, dtype=int)], (
+            None if traj.state is None else traj.state[np.zeros(idx.size, dtype=int)])
+    lo, hi = t[i - 1], t[i]
+    near_lo = np.abs(frame_times - lo) <= SAME_INSTANT_S
+    near_hi = np.abs(frame_times - hi) <= SAME_INSTANT_S
+    inside = (frame_times > lo) & (frame_times < hi) & (hi - lo <= MAX_INTERPOLATION_GAP_S)
+    covered = near_lo | near_hi | inside
+    frames = np.flatnonzero(covered)
+    poses = np.empty((frames.size, 4, 4))
+    state = None if traj.state is None else np.empty((frames.size, 9))
+    for n, k in enumerate(frames):
+        a, b = i[k] - 1, i[k]
+        if near_lo[k] or near_hi[k]:
+            j = a if near_lo[k] else b
+            poses[n] = traj.poses[j]
+            if state is not None:
+                state[n] = traj.state[j]
+            continue
+        s = (frame_times[k] - t[a]) / (t[b] - t[a])
+        poses[n] = np.eye(4)
+        poses[n, :3, 3] = (1 - s) * traj.poses[a, :3, 3] + s * traj.poses[b, :3, 3]
+        slerp = Slerp([0.0, 1.0], Rotation.from_matrix(traj.poses[[a, b], :3, :3]))
+        poses[n, :3, :3] = slerp([s]).as_matrix()[0]
+        if state is not None:
+            state[n] = (1 - s) * traj.state[a] + s * traj.state[b]
+    return frames, poses, state
+
+
+def inertial_truth(drive: InertialDrive, traj: TimedTrajectory) -> InertialTruth:
+    """``traj`` at ``drive``'s camera frames in the estimates' world (module docstring)."""
+    frame_times = drive.time_origin_ns * 1e-9 + drive.timestamps
+    frames, poses, state = at_frames(traj, frame_times)
+    if frames.size == 0 or frames[0] != 0:
+        raise InputError(f"{traj.source}: no ground-truth pose at the drive's first frame "
+                         f"({frame_times[0]:.6f} s; the file covers {traj.times[0]:.6f} to "
+                         f"{traj.times[-1]:.6f} s): the estimates' world is defined there")
+    Y_inv = np.linalg.inv(heading_frame(poses[0]))
+    world_poses = Y_inv @ poses
+    truth = GroundTruth(frames, world_poses, traj.source, times=drive.timestamps[frames])
+    if state is None:
+        return InertialTruth(truth)
+    velocity = state[:, 0:3] @ Y_inv[:3, :3].T
+    return InertialTruth(truth, velocity, state[:, 3:6], state[:, 6:9])
+
+
+def find_inertial_truth(npz_path: str | os.PathLike, drive: InertialDrive,
+                        override: str | os.PathLike | None = None) -> InertialTruth | None:
+    """The ground truth of a raw-IMU drive: ``override`` if given (it must exist), else
+    :func:`inertial_truth_path` where a file is there, else None."""
+    path = Path(override) if override is not None else inertial_truth_path(npz_path)
+    if override is None and not (path.exists() or path.is_symlink()):
+        return None
+    return inertial_truth(drive, read_trajectory(path))
