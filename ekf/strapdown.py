@@ -51,7 +51,7 @@ import numpy as np
 
 from vislam.ekf.errors import EstimationError
 from vislam.ekf.filter import ImuSamples
-from vislam.ekf.geometry import hat, theta_coeffs_scalar
+from vislam.ekf.geometry import theta_coeffs_scalar
 from vislam.ekf.inertial import ImuNoise
 
 #: The error state's blocks, in order (3 each): rotation (body), velocity, position (world),
@@ -91,11 +91,15 @@ class NavState:
 def exp_and_right_jacobian(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``Exp(phi)`` and the right Jacobian ``Jr(phi)`` of SO(3) (one vector; closed form,
     series near zero): ``Exp(phi + d) ~ Exp(phi) Exp(Jr(phi) d)``."""
-    theta = math.sqrt(float(phi @ phi))
-    A, B, C = theta_coeffs_scalar(theta)
-    W = hat(phi)
+    x, y, z = float(phi[0]), float(phi[1]), float(phi[2])
+    A, B, C = theta_coeffs_scalar(math.sqrt(x * x + y * y + z * z))
+    W = _hat(x, y, z)
     W2 = W @ W
     return _I3 + A * W + B * W2, _I3 - B * W + C * W2
+
+
+def _hat(x: float, y: float, z: float) -> np.ndarray:
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def step(state: NavState, gyro: np.ndarray, accel: np.ndarray, dt: float,
@@ -116,7 +120,7 @@ def step_jacobian(state: NavState, gyro: np.ndarray, accel: np.ndarray, dt: floa
 
 def _jacobian(R, dR, Jr, a, dt) -> np.ndarray:
     F = np.eye(N_ERROR)
-    A = R @ hat(a)
+    A = R @ _hat(float(a[0]), float(a[1]), float(a[2]))
     F[ROT, ROT] = dR.T
     F[ROT, BG] = -Jr * dt
     F[VEL, ROT] = -A * dt
@@ -130,9 +134,14 @@ def _jacobian(R, dR, Jr, a, dt) -> np.ndarray:
 def step_noise(Jr: np.ndarray, dt: float, noise: ImuNoise) -> np.ndarray:
     """``Q`` (15, 15) of one step of length ``dt`` (module docstring); ``Jr`` the right
     Jacobian of the step's rotation."""
+    Q = _noise_without_rotation(dt, noise)
+    Q[ROT, ROT] = noise.gyro_noise_density ** 2 * dt * (Jr @ Jr.T)
+    return Q
+
+
+def _noise_without_rotation(dt: float, noise: ImuNoise) -> np.ndarray:
     Q = np.zeros((N_ERROR, N_ERROR))
-    sg2, sa2 = noise.gyro_noise_density ** 2, noise.accel_noise_density ** 2
-    Q[ROT, ROT] = sg2 * dt * (Jr @ Jr.T)
+    sa2 = noise.accel_noise_density ** 2
     Q[VEL, VEL] = sa2 * dt * _I3
     Q[VEL, POS] = Q[POS, VEL] = 0.5 * sa2 * dt * dt * _I3
     Q[POS, POS] = 0.25 * sa2 * dt ** 3 * _I3
@@ -155,9 +164,11 @@ def integrate(state: NavState, P: np.ndarray | None, imu: ImuSamples, t0: float,
         raise EstimationError(f"strapdown: no IMU sample at or before t={t0:.6f} s ({first})")
     ends = np.append(time[1:], t1)
     R, v, p, bg, ba = state.R, state.v, state.p, state.bg, state.ba
+    q_cache: dict[float, np.ndarray] = {}
+    sg2 = 0.0 if noise is None else noise.gyro_noise_density ** 2
     for j in range(time.size):
         start, end = max(time[j], t0), min(ends[j], t1)
-        dt = end - start
+        dt = float(end - start)
         if dt <= 0:
             continue
         dR, Jr = exp_and_right_jacobian((imu.gyro[j] - bg) * dt)
@@ -165,7 +176,11 @@ def integrate(state: NavState, P: np.ndarray | None, imu: ImuSamples, t0: float,
         acc = g_world + R @ a
         if P is not None:
             F = _jacobian(R, dR, Jr, a, dt)
-            P = F @ P @ F.T + step_noise(Jr, dt, noise)
+            Q = q_cache.get(dt)
+            if Q is None:
+                Q = q_cache[dt] = _noise_without_rotation(dt, noise)
+            P = F @ P @ F.T + Q
+            P[ROT, ROT] += sg2 * dt * (Jr @ Jr.T)
         p = p + v * dt + 0.5 * dt * dt * acc
         v = v + acc * dt
         R = R @ dR
