@@ -3,15 +3,16 @@ state (:mod:`ekf.imu_init`: a rest at the start, or given), with its propagated 
 out at the camera frames as an :class:`ekf.estimate.Estimate`.
 
 The Estimate's world frame for a raw-IMU drive is gravity-aligned, z up (not the IMU frame at
-frame 0 as for a velocity drive): from a rest, its origin is the IMU's position at the initial
-time (frame 0's when frame 0 lies in the rest) and its yaw the IMU's there, levelled; from a given
-state, the frame that state is written in. ``pose_cov[k]`` is in the Estimate convention (right
-perturbation of ``world_T_imu``, translation first): with the strapdown's world-frame position
-error ``dp`` and body rotation error ``dth``, ``xi = [R^T dp; dth]`` (first order).
+frame 0 as for a velocity drive). From a rest (looked for from frame 0 on:
+:func:`ekf.imu_init.detect_rest`), its origin is the IMU's position at frame 0 and its yaw the
+IMU's there, levelled; from a given state, the frame that state is written in. ``pose_cov[k]`` is
+in the Estimate convention (right perturbation of ``world_T_imu``, translation first): with the
+strapdown's world-frame position error ``dp`` and body rotation error ``dth``,
+``xi = [R^T dp; dth]`` (first order). At frame 0 from a rest its position and yaw blocks are
+zero: they fix the gauge.
 
-When the initial time is before frame 0 (a given state, or a rest that ends before frame 0) the
-state is integrated forward to frame 0 first. ``info`` holds the initialisation, the rest's end,
-the final velocity and biases, and the scheme.
+When a given state's time is before frame 0 the state is integrated forward to frame 0 first.
+``info`` holds the initialisation, the rest, the final velocity and biases, and the scheme.
 """
 
 from __future__ import annotations
@@ -65,9 +66,9 @@ def strapdown_frames(drive: InertialDrive, initial: InitialState | None = None,
     g_world = calib.gravity * WORLD_GRAVITY_DIRECTION
     ts = np.asarray(drive.timestamps, dtype=float)
     if initial is None:
-        rest_end = detect_rest(drive.imu, rest)
-        t_init = min(float(ts[0]), rest_end)
-        initial = rest_initial_state(drive.imu, t_init, calib.gravity, calib.noise, rest, rest_end)
+        found = detect_rest(drive.imu, rest, float(ts[0]))
+        initial = rest_initial_state(drive.imu, float(ts[0]), calib.gravity, calib.noise, rest,
+                                     found)
     if initial.time > ts[0]:
         raise EstimationError(f"dead reckoning: the initial state's time {initial.time:.6f} s is "
                               f"after frame 0 ({ts[0]:.6f} s)")
@@ -106,7 +107,8 @@ def run_inertial_dead_reckoning(drive: InertialDrive, initial: InitialState | No
         "numerical_rejection_frames": [],
         "initialisation": track.initial.source,
         "initial_time_s": track.initial.time,
-        "rest_end_s": track.initial.rest_end,
+        "rest_s": None if track.initial.rest is None else [track.initial.rest.start,
+                                                            track.initial.rest.end],
         "world_frame": "gravity-aligned, z up",
         "final_velocity": last.v.tolist(),
         "final_gyro_bias": last.bg.tolist(),

@@ -4,8 +4,9 @@ State (:class:`NavState`): ``R`` world_R_imu, ``v`` and ``p`` the IMU's world ve
 position, ``bg`` and ``ba`` the gyro and accelerometer biases. The world frame is gravity-aligned
 with gravity ``g_world`` (vislam: ``[0, 0, -g]``, z up).
 
-The discrete scheme (the one preintegration uses: Forster et al. 2017, eq. 24-26; GTSAM's
-``PreintegratedImuMeasurements`` / ``NavState::update``). A sample ``(w_m, a_m)`` stamped ``t_j`` is
+The discrete scheme (the one preintegration uses: Forster et al., "On-manifold preintegration",
+T-RO 2017, its discrete-time IMU model; GTSAM's ``PreintegratedImuMeasurements`` /
+``NavState::update``). A sample ``(w_m, a_m)`` stamped ``t_j`` is
 held over ``[t_j, t_j+1)`` (clipped to the interval integrated); with ``w = w_m - bg``,
 ``a = a_m - ba`` and the step ``dt``::
 
@@ -14,8 +15,11 @@ held over ``[t_j, t_j+1)`` (clipped to the interval integrated); with ``w = w_m 
     p' = p + v dt + (g_world + R a) dt^2 / 2
     bg' = bg,  ba' = ba
 
-Exact for a constant rotation rate and a constant world acceleration; for a general motion its
-error is first order in dt (the sample rate), the same as the preintegrated factors'.
+When a sample holds its interval's delta angle and delta velocity (divided by dt; the
+simulator's samples, :mod:`eval.imu_sim`) the scheme is exact in rotation and velocity and its
+position has the trapezoid rule's error, bounded by ``dt^2 / 12 max|a(t) - a(0)|``. For samples
+of the instantaneous rate and specific force its error is first order in dt, the same as the
+preintegrated factors'.
 
 Error state (15, order :data:`ERROR_STATE`): ``R_true = R Exp(dth)`` (body frame, right),
 ``v_true = v + dv``, ``p_true = p + dp`` (world frame), ``bg_true = bg + dbg``,
@@ -27,9 +31,9 @@ right Jacobian of SO(3) and ``A = R [a]x``::
     dv'  = dv  - A dt dth                            - R dt dba
     dp'  = dp  - A dt^2/2 dth  + dt dv                - R dt^2/2 dba
 
-Noise (:class:`ekf.inertial.ImuNoise`, continuous-time densities; Forster et al. 2017 sec. IV-B:
-the discrete white noise of a step of length dt has covariance ``density^2 / dt``, the bias
-random walk over dt ``walk^2 dt``). It enters through ``G`` (gyro noise into dth with ``-Jr dt``,
+Noise (:class:`ekf.inertial.ImuNoise`, continuous-time densities; as in Forster et al. 2017, the
+discrete white noise of a step of length dt has covariance ``density^2 / dt``, the bias random
+walk over dt ``walk^2 dt``). It enters through ``G`` (gyro noise into dth with ``-Jr dt``,
 accelerometer noise into dv with ``-R dt`` and into dp with ``-R dt^2/2``), so ``P' = F P F^T + Q``
 with::
 
@@ -38,8 +42,9 @@ with::
     Q_bgbg = wg^2 dt I, Q_baba = wa^2 dt I
 
 (``sg``, ``sa`` the noise densities, ``wg``, ``wa`` the random walks). The first four are
-Forster's ``B Cov(eta_d) B^T`` (eq. 62-63) with ``Cov(eta_d) = Cov(eta) / dt``; the bias walk is
-that of GTSAM's ``CombinedImuFactor`` (``Cov(eta_bd) = Cov(eta_b) dt``).
+Forster's iterative noise propagation ``B Cov(eta_d) B^T`` (its appendix) with
+``Cov(eta_d) = Cov(eta) / dt``, written in the world-frame velocity and position used here; the
+bias walk is that of GTSAM's ``CombinedImuFactor`` (``Cov(eta_bd) = Cov(eta_b) dt``).
 """
 
 from __future__ import annotations

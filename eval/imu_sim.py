@@ -105,7 +105,8 @@ class ImuTruth:
     trajectory: Trajectory
 
 
-def camera_setup(config: ImuSimConfig) -> tuple[np.ndarray, tuple[int, int], float, np.ndarray, float]:
+def camera_setup(config: ImuSimConfig
+                 ) -> tuple[np.ndarray, tuple[int, int], float, np.ndarray, float]:
     """``K``, image size, baseline, ``cam_T_imu`` and the default range of the scenario."""
     road = config.scenario == "road"
     K = KITTI_K.copy() if road else ROOM_K.copy()

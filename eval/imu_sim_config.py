@@ -46,6 +46,19 @@ def _nonnegative(name: str, value, top: float | None = None) -> None:
         raise InputError(f"imu simulation: {name} must be at most {top:g}, got {value!r}")
 
 
+def _integer(name: str, value, lo: int, hi: int) -> None:
+    if (isinstance(value, bool) or not isinstance(value, (int, np.integer))
+            or not lo <= value <= hi):
+        raise InputError(f"imu simulation: {name} must be an integer between {lo} and {hi}, "
+                         f"got {value!r}")
+
+
+def _choice(name: str, value, choices: tuple[str, ...]) -> None:
+    if not isinstance(value, str) or value not in choices:
+        raise InputError(f"imu simulation: {name} must be one of {', '.join(choices)}, "
+                         f"got {value!r}")
+
+
 @dataclass(frozen=True)
 class ImuSimConfig:
     """Every setting of the raw-IMU simulator; the defaults give a 30 s monocular room drive.
@@ -58,11 +71,13 @@ class ImuSimConfig:
     :data:`CAMERAS`; ``n_frames`` camera frames at ``camera_rate_hz``; the IMU at
     ``imu_rate_hz`` (an integer multiple of the camera rate: every frame is taken with an IMU
     sample); ``rest_s`` seconds standing still at the start, then a ``ramp_s`` second smooth
-    start (None: the scenario's :data:`eval.imu_trajectories.DEFAULT_RAMP_S`). IMU noise: ``noise`` (densities and random walks, :class:`ekf.inertial.ImuNoise`),
-    initial biases drawn with sigmas ``gyro_bias_sigma`` (rad/s) and ``accel_bias_sigma``
+    start (None: the scenario's :data:`eval.imu_trajectories.DEFAULT_RAMP_S`). IMU noise:
+    ``noise`` (densities and random walks, :class:`ekf.inertial.ImuNoise`), initial biases drawn with sigmas ``gyro_bias_sigma`` (rad/s) and ``accel_bias_sigma``
     (m/s^2). ``noise_free``: no white noise, zero biases and no bias walk, no pixel noise.
     Landmarks: ``n_landmarks`` (room: on the walls, floor and ceiling; road: per 100 m of road,
-    both sides; None: :data:`DEFAULT_LANDMARKS`), seen within ``[min_depth, max_range]`` m and inside the image."""
+    both sides; None: :data:`DEFAULT_LANDMARKS`), seen within ``[min_depth, max_range]`` m
+    (``max_range`` None: the scenario's, 12 m in the room, 60 m on the road) and inside the
+    image."""
 
     seed: int = 0
     scene_seed: int | None = None
@@ -80,30 +95,19 @@ class ImuSimConfig:
     pixel_sigma: float = 1.0
     n_landmarks: int | None = None
     min_depth: float = 0.2
-    max_range: float = 0.0
+    max_range: float | None = None
     noise_free: bool = False
     sampling: str = "interval"
     name: str = ""
 
     def __post_init__(self) -> None:
-        if (isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer))
-                or not 0 <= self.seed < 2**63):
-            raise InputError(f"imu simulation: seed must be an integer in [0, 2^63), got {self.seed!r}")
-        if self.scene_seed is not None and (
-                isinstance(self.scene_seed, bool) or not isinstance(self.scene_seed, (int, np.integer))
-                or not 0 <= self.scene_seed < 2**63):
-            raise InputError(f"imu simulation: scene_seed must be None or an integer in [0, 2^63), "
-                             f"got {self.scene_seed!r}")
-        if self.scenario not in SCENARIOS:
-            raise InputError(f"imu simulation: scenario must be one of {', '.join(SCENARIOS)}, "
-                             f"got {self.scenario!r}")
-        if self.camera not in CAMERAS:
-            raise InputError(f"imu simulation: camera must be one of {', '.join(CAMERAS)}, "
-                             f"got {self.camera!r}")
-        if (isinstance(self.n_frames, bool) or not isinstance(self.n_frames, (int, np.integer))
-                or not 2 <= self.n_frames <= MAX_IMU_SIM_FRAMES):
-            raise InputError(f"imu simulation: n_frames must be an integer between 2 and "
-                             f"{MAX_IMU_SIM_FRAMES}, got {self.n_frames!r}")
+        _integer("seed", self.seed, 0, 2**63 - 1)
+        if self.scene_seed is not None:
+            _integer("scene_seed", self.scene_seed, 0, 2**63 - 1)
+        _choice("scenario", self.scenario, SCENARIOS)
+        _choice("camera", self.camera, CAMERAS)
+        _choice("sampling", self.sampling, SAMPLINGS)
+        _integer("n_frames", self.n_frames, 2, MAX_IMU_SIM_FRAMES)
         _positive("camera_rate_hz", self.camera_rate_hz, 1000.0)
         _positive("imu_rate_hz", self.imu_rate_hz, 100000.0)
         ratio = self.imu_rate_hz / self.camera_rate_hz
@@ -122,18 +126,17 @@ class ImuSimConfig:
         _nonnegative("accel_bias_sigma", self.accel_bias_sigma, 10.0)
         _positive("gravity", self.gravity, 100.0)
         _nonnegative("pixel_sigma", self.pixel_sigma, 1000.0)
-        if self.n_landmarks is not None and (isinstance(self.n_landmarks, bool) or not isinstance(self.n_landmarks, (int, np.integer))
-                or not 1 <= self.n_landmarks <= 1_000_000):
-            raise InputError(f"imu simulation: n_landmarks must be an integer between 1 and "
-                             f"1000000, got {self.n_landmarks!r}")
+        if self.n_landmarks is not None:
+            _integer("n_landmarks", self.n_landmarks, 1, 1_000_000)
         _positive("min_depth", self.min_depth, 1e4)
-        _nonnegative("max_range", self.max_range, 1e4)
-        if self.max_range and self.max_range <= self.min_depth:
-            raise InputError(f"imu simulation: max_range ({self.max_range:g}) must be above "
-                             f"min_depth ({self.min_depth:g}), or 0 for the scenario's default")
-        if self.sampling not in SAMPLINGS:
-            raise InputError(f"imu simulation: sampling must be one of {', '.join(SAMPLINGS)}, "
-                             f"got {self.sampling!r}")
+        if self.max_range is not None:
+            _positive("max_range", self.max_range, 1e4)
+            if self.max_range <= self.min_depth:
+                raise InputError(f"imu simulation: max_range ({self.max_range:g}) must be above "
+                                 f"min_depth ({self.min_depth:g})")
+        if not isinstance(self.noise_free, bool):
+            raise InputError(f"imu simulation: noise_free must be true or false, "
+                             f"got {self.noise_free!r}")
         if not isinstance(self.name, str):
             raise InputError(f"imu simulation: name must be a string, got {self.name!r}")
 
@@ -150,7 +153,9 @@ class ImuSimConfig:
     @property
     def landmark_count(self) -> int:
         """``n_landmarks`` or the scenario's default."""
-        return DEFAULT_LANDMARKS[self.scenario] if self.n_landmarks is None else int(self.n_landmarks)
+        if self.n_landmarks is None:
+            return DEFAULT_LANDMARKS[self.scenario]
+        return int(self.n_landmarks)
 
     @property
     def frame_stride(self) -> int:

@@ -97,15 +97,16 @@ def test_rest_reads_gravity_and_bias():
     expected = R0.T @ np.array([0.0, 0.0, g]) + truth.accel_bias[0]
     np.testing.assert_allclose(drive.imu.accel, np.tile(expected, (drive.imu.time.size, 1)),
                                atol=1e-9)
-    np.testing.assert_allclose(drive.imu.gyro, np.tile(truth.gyro_bias[0], (drive.imu.time.size, 1)),
-                               atol=1e-12)
+    n = drive.imu.time.size
+    np.testing.assert_allclose(drive.imu.gyro, np.tile(truth.gyro_bias[0], (n, 1)), atol=1e-12)
 
 
 def test_noise_and_bias_walk_follow_the_densities():
     noise = ImuNoise(0.01, 0.001, 0.1, 0.01)
     cfg = ImuSimConfig(n_frames=401, noise=noise, n_landmarks=10, seed=3)
     drive, truth = simulate_imu(cfg)
-    clean, _ = simulate_imu(ImuSimConfig(n_frames=401, noise_free=True, n_landmarks=10, scene_seed=3))
+    clean, _ = simulate_imu(ImuSimConfig(n_frames=401, noise_free=True, n_landmarks=10,
+                                         scene_seed=3))
     rate = cfg.imu_rate_hz
     for meas, ref, bias, density, walk in (
             (drive.imu.gyro, clean.imu.gyro, truth.gyro_bias, 0.01, 0.001),
@@ -132,7 +133,8 @@ def test_determinism_per_seed_and_scene_seed():
 
 @pytest.mark.parametrize("scenario", ["room", "road"])
 def test_mono_and_stereo_pixels_are_the_landmarks(scenario):
-    mono, tm = simulate_imu(ImuSimConfig(scenario=scenario, camera="mono", noise_free=True, **SHORT))
+    mono, tm = simulate_imu(ImuSimConfig(scenario=scenario, camera="mono", noise_free=True,
+                                         **SHORT))
     stereo, ts = simulate_imu(ImuSimConfig(scenario=scenario, camera="stereo", noise_free=True,
                                            **SHORT))
     assert isinstance(mono, InertialDrive) and mono.obs.z.shape[1] == 2 and not mono.stereo
@@ -213,6 +215,9 @@ def test_drive_shape_and_frames_on_samples():
     (dict(noise=ImuNoise(0.0, 0.0, 0.0, float("nan"))), "noise.accel_random_walk"),
     (dict(n_landmarks=0), "n_landmarks"),
     (dict(min_depth=2.0, max_range=1.0), "max_range"),
+    (dict(max_range=-5.0), "max_range"),
+    (dict(noise_free="yes"), "noise_free"),
+    (dict(scenario=["room"]), "scenario"),
     (dict(sampling="midpoint"), "sampling"),
 ])
 def test_hostile_configs_name_the_field(kwargs, field):
