@@ -46,8 +46,10 @@ import numpy as np
 from vislam.ekf.camera import project, stereo_matrix
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.geometry import se3_inv, so3_exp, so3_log
+from vislam.ekf.imu_init import InitialState
 from vislam.ekf.inertial import InertialCalibration, InertialDrive
 from vislam.ekf.sequence import Observations
+from vislam.ekf.strapdown import N_ERROR, NavState
 from vislam.eval.imu_sim_config import ImuSimConfig
 from vislam.eval.imu_trajectories import (ROOM_HALF_X, ROOM_HALF_Y, ROOM_HEIGHT, Trajectory,
                                           TrajectoryPoint, make_trajectory)
@@ -103,6 +105,17 @@ class ImuTruth:
     motion_start_s: float
     frame_stride: int
     trajectory: Trajectory
+
+    def frame_state(self, k: int) -> NavState:
+        """The true :class:`ekf.strapdown.NavState` at camera frame ``k``."""
+        T = self.frame_poses[k]
+        return NavState(T[:3, :3].copy(), self.frame_velocity[k].copy(), T[:3, 3].copy(),
+                        self.frame_gyro_bias[k].copy(), self.frame_accel_bias[k].copy())
+
+    def initial_state(self, time: float, k: int = 0) -> InitialState:
+        """The true state at frame ``k`` (time ``time``, the drive's ``timestamps[k]``) with a
+        zero covariance: dead reckoning from the truth."""
+        return InitialState(float(time), self.frame_state(k), np.zeros((N_ERROR, N_ERROR)))
 
 
 def camera_setup(config: ImuSimConfig

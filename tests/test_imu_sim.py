@@ -6,7 +6,6 @@ import pytest
 from vislam.ekf.camera import stereo_matrix
 from vislam.ekf.errors import InputError
 from vislam.ekf.geometry import se3_inv, so3_log
-from vislam.ekf.imu_init import InitialState
 from vislam.ekf.inertial import ImuNoise, InertialDrive
 from vislam.ekf.inertial_dead_reckoning import WORLD_GRAVITY_DIRECTION, strapdown_frames
 from vislam.ekf.strapdown import NavState, integrate
@@ -15,13 +14,6 @@ from vislam.eval.imu_sim_config import ImuSimConfig
 from vislam.eval.imu_trajectories import SCENARIOS, make_trajectory
 
 SHORT = dict(n_frames=101)  # 5 s at 20 Hz
-
-
-def _true_initial(drive, truth) -> InitialState:
-    T0 = truth.frame_poses[0]
-    state = NavState(T0[:3, :3], truth.frame_velocity[0], T0[:3, 3], truth.frame_gyro_bias[0],
-                     truth.frame_accel_bias[0])
-    return InitialState(float(drive.timestamps[0]), state, np.zeros((15, 15)))
 
 
 def _integrate_samples(drive, truth):
@@ -75,7 +67,7 @@ def test_noise_free_imu_integrates_into_the_trajectory(scenario):
         if pos_tol is not None:
             assert pos_err.max() < pos_tol
     # The same at the camera frames, through the dead reckoning's frame loop.
-    track = strapdown_frames(drive, _true_initial(drive, truth))
+    track = strapdown_frames(drive, truth.initial_state(drive.timestamps[0]))
     np.testing.assert_allclose(track.poses, truth.frame_poses, atol=1e-6)
 
 
