@@ -26,7 +26,9 @@ up direction) and ``g`` the calibration's gravity magnitude:
   bias error ``dba = (I - u u^T) ba - u u^T n``, so their covariance (with the cross terms)
   follows exactly; the gyro bias error has variance ``gyro_noise_density^2 / T +
   gyro_random_walk^2 T`` (the mean's noise, and the walk over the rest); velocity sigma
-  ``velocity_sigma``; position and yaw zero (the gauge).
+  ``velocity_sigma``; position and yaw are the gauge, with sigmas ``position_sigma`` (1e-3 m)
+  and ``yaw_sigma`` (1e-4 rad about gravity), the initial sigmas of the velocity-driven filters
+  (:class:`ekf.config.FilterConfig`), so that frame 0's covariance is not singular.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.geometry import hat, so3_exp
 from vislam.ekf.inertial import ImuNoise
-from vislam.ekf.strapdown import BA, BG, N_ERROR, ROT, VEL, NavState
+from vislam.ekf.strapdown import BA, BG, N_ERROR, POS, ROT, VEL, NavState
 
 
 @dataclass(frozen=True)
@@ -53,13 +55,15 @@ class RestConfig:
     min_rest_s: float = 0.4
     accel_bias_sigma: float = 0.05
     velocity_sigma: float = 0.0
+    position_sigma: float = 1e-3
+    yaw_sigma: float = 1e-4
 
     def __post_init__(self) -> None:
         for key in ("window_s", "accel_mean_tol", "gyro_mean_tol", "min_rest_s"):
             value = getattr(self, key)
             if not np.isfinite(value) or value <= 0:
                 raise InputError(f"rest initialisation: {key} must be positive, got {value!r}")
-        for key in ("accel_bias_sigma", "velocity_sigma"):
+        for key in ("accel_bias_sigma", "velocity_sigma", "position_sigma", "yaw_sigma"):
             value = getattr(self, key)
             if not np.isfinite(value) or value < 0:
                 raise InputError(f"rest initialisation: {key} must be >= 0, got {value!r}")
@@ -170,4 +174,6 @@ def rest_initial_state(imu: ImuSamples, time: float, gravity: float, noise: ImuN
     P = J @ S @ J.T
     P[BG, BG] = (noise.gyro_noise_density ** 2 / T + noise.gyro_random_walk ** 2 * T) * np.eye(3)
     P[VEL, VEL] = config.velocity_sigma ** 2 * np.eye(3)
+    P[POS, POS] = config.position_sigma ** 2 * np.eye(3)
+    P[ROT, ROT] += config.yaw_sigma ** 2 * par  # a world-yaw turn is a body turn about u
     return InitialState(float(time), state, P, "rest", rest)

@@ -8,8 +8,8 @@ frame 0 as for a velocity drive). From a rest (looked for from frame 0 on:
 IMU's there, levelled; from a given state, the frame that state is written in. ``pose_cov[k]`` is
 in the Estimate convention (right perturbation of ``world_T_imu``, translation first): with the
 strapdown's world-frame position error ``dp`` and body rotation error ``dth``,
-``xi = [R^T dp; dth]`` (first order). At frame 0 from a rest its position and yaw blocks are
-zero: they fix the gauge.
+``xi = [R^T dp; dth]`` (first order). At frame 0 from a rest its position and yaw blocks are the
+gauge's small sigmas (:class:`ekf.imu_init.RestConfig`).
 
 When a given state's time is before frame 0 the state is integrated forward to frame 0 first.
 ``info`` holds the initialisation, the rest, the final velocity and biases, and the scheme.
