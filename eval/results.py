@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from vislam.ekf.errors import InputError
+from vislam.eval.metrics import lengths_text
 from vislam.eval.json_reading import (
     count,
     named_objects,
@@ -40,12 +41,17 @@ from vislam.eval.json_reading import (
 RESULTS_FILE = "results.json"
 NEES_FILE = "nees.json"
 SETTINGS_FILE = "settings.json"
-#: The results.json schema read here (what eval/benchmark.py writes as its ``SCHEMA``).
-BENCH_SCHEMA = 1
+#: The results.json schema written today (eval.bench_scores.SCHEMA) ...
+BENCH_SCHEMA = 2
+#: ... and every schema read: 1 lacks the drive-fitted RPE (its figures read as None).
+BENCH_SCHEMAS = (1, 2)
 #: The figures of one estimator on one drive of a bench folder (results.json's keys).
 BENCH_FIGURE_KEYS = ("runtime_s", "frames_per_s", "ate_m", "ate_aligned_m", "rpe_trans_pct",
-                     "rpe_rot_deg_per_100m", "nees_pose_mean", "map_rmse_m",
-                     "nees_landmark_mean")
+                     "rpe_rot_deg_per_100m", "rpe_drive_trans_pct", "rpe_drive_rot_deg_per_m",
+                     "nees_pose_mean", "map_rmse_m", "nees_landmark_mean")
+#: The figures of each segment length of the drive-fitted RPE (results.json's
+#: ``rpe_drive.per_length[k]``), each {mean, median, rmse}.
+RPE_LENGTH_KEYS = ("trans_m", "trans_pct", "rot_deg", "rot_deg_per_m")
 #: The figures against the reference smoother (results.json's ``vs_smoother``).
 VS_SMOOTHER_KEYS = ("ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean",
                     "inside_95_fraction")
@@ -72,6 +78,51 @@ class VersusSmoother:
 
 
 @dataclass(frozen=True)
+class ErrorStats:
+    """Mean, median and RMSE of an error over segments (None: no value)."""
+
+    mean: float | None
+    median: float | None
+    rmse: float | None
+
+
+@dataclass(frozen=True)
+class SegmentLengthRpe:
+    """The drive-fitted RPE over the segments of one length: their number and the statistics
+    of the translation error (m, % of the segment's true path) and rotation error (deg, deg/m);
+    None where the length has no segment."""
+
+    length_m: float
+    n_segments: int
+    trans_m: ErrorStats | None
+    trans_pct: ErrorStats | None
+    rot_deg: ErrorStats | None
+    rot_deg_per_m: ErrorStats | None
+
+
+@dataclass(frozen=True)
+class DriveRpe:
+    """The drive-fitted RPE of an estimator (results.json's ``rpe_drive``,
+    :func:`eval.metrics.drive_rpe`): the segment lengths chosen from the drive's true path,
+    the statistics over the segments of every length together and per length, and ``note``:
+    in words why there is no figure (None when there is one)."""
+
+    lengths_m: tuple[float, ...]
+    path_length_m: float | None
+    frames: int | None
+    n_segments: int
+    trans_pct: ErrorStats | None
+    rot_deg_per_m: ErrorStats | None
+    per_length: tuple[SegmentLengthRpe, ...]
+    note: str | None
+
+    @property
+    def lengths_text(self) -> str:
+        """The lengths in words ("4, 8, 12, 16 and 20 m"; "none")."""
+        return lengths_text(self.lengths_m)
+
+
+@dataclass(frozen=True)
 class EstimatorResult:
     """One estimator on one drive of a bench folder: its figures (None: no value), the error
     that stopped it (None: it ran), and the files it left (None: not in the folder)."""
@@ -89,6 +140,12 @@ class EstimatorResult:
     map_rmse_m: float | None
     nees_landmark_mean: float | None
     vs_smoother: VersusSmoother
+    #: the drive-fitted RPE (mean over its segments; None: no value, or a schema 1 folder)
+    rpe_drive_trans_pct: float | None = None
+    rpe_drive_rot_deg_per_m: float | None = None
+    #: its detail: the lengths used, per length the statistics, or why there is none (None:
+    #: no ground truth, the estimator failed, or a schema 1 folder)
+    rpe_drive: DriveRpe | None = None
     #: the whole estimate (``ekf.estimate.Estimate.save_npz``)
     estimate_path: Path | None = None
     #: the trajectory in TUM format
@@ -205,6 +262,8 @@ class BenchResults:
     drives: dict[str, DriveResult]
     wall_s: float | None
     settings: dict | None
+    #: what the drive-fitted RPE means (None in a schema 1 folder)
+    rpe_drive_definition: str | None = None
 
     @property
     def filter(self) -> dict | None:
@@ -343,6 +402,7 @@ def _estimator(r: dict, w: str, folder: Path) -> EstimatorResult:
     versus = VersusSmoother(**{k: number(vs.get(k), f"{w}.vs_smoother.{k}")
                                for k in VS_SMOOTHER_KEYS})
     figures = {k: number(r.get(k), f"{w}.{k}") for k in BENCH_FIGURE_KEYS}
+    figures["rpe_drive"] = drive_rpe_of(r.get("rpe_drive"), f"{w}.rpe_drive")
     stem = file_stem(r["name"])
     estimate = next((f for f in (folder / f"{stem}.estimate.npz", folder / f"{stem}.npz")
                      if f.is_file()), None)
@@ -354,14 +414,62 @@ def _estimator(r: dict, w: str, folder: Path) -> EstimatorResult:
         **figures)
 
 
+def _stats(x, where: str) -> ErrorStats | None:
+    if x is None:
+        return None
+    if not isinstance(x, dict):
+        raise InputError(f"{where}: expected an object or null, got {short(x)}")
+    return ErrorStats(**{k: number(x.get(k), f"{where}.{k}") for k in ("mean", "median", "rmse")})
+
+
+def drive_rpe_of(x, where: str) -> DriveRpe | None:
+    """The :class:`DriveRpe` of results.json's ``rpe_drive`` object ``x`` (placed ``where`` in
+    messages); None for null or absent."""
+    if x is None:
+        return None
+    if not isinstance(x, dict):
+        raise InputError(f"{where}: expected an object or null, got {short(x)}")
+    lengths = x.get("lengths_m", [])
+    if not isinstance(lengths, list):
+        raise InputError(f"{where}.lengths_m: expected a list, got {short(lengths)}")
+    lengths_m = []
+    for k, v in enumerate(lengths):
+        value = number(v, f"{where}.lengths_m[{k}]")
+        if value is None or value <= 0:
+            raise InputError(f"{where}.lengths_m[{k}]: expected a length in metres, got {short(v)}")
+        lengths_m.append(value)
+    rows = x.get("per_length", [])
+    if not isinstance(rows, list):
+        raise InputError(f"{where}.per_length: expected a list, got {short(rows)}")
+    per_length = []
+    for k, row in enumerate(rows):
+        w = f"{where}.per_length[{k}]"
+        if not isinstance(row, dict):
+            raise InputError(f"{w}: expected an object, got {short(row)}")
+        length = number(row.get("length_m"), f"{w}.length_m")
+        if length is None:
+            raise InputError(f"{w}: missing key 'length_m'")
+        per_length.append(SegmentLengthRpe(
+            length_m=length, n_segments=count(row.get("n_segments", 0), f"{w}.n_segments") or 0,
+            **{key: _stats(row.get(key), f"{w}.{key}") for key in RPE_LENGTH_KEYS}))
+    frames = count(x.get("frames"), f"{where}.frames")
+    return DriveRpe(
+        lengths_m=tuple(lengths_m),
+        path_length_m=number(x.get("path_length_m"), f"{where}.path_length_m"),
+        frames=frames, n_segments=count(x.get("n_segments", 0), f"{where}.n_segments") or 0,
+        trans_pct=_stats(x.get("trans_pct"), f"{where}.trans_pct"),
+        rot_deg_per_m=_stats(x.get("rot_deg_per_m"), f"{where}.rot_deg_per_m"),
+        per_length=tuple(per_length), note=text_or_none(x.get("note"), f"{where}.note"))
+
+
 def bench_results(data, path: Path, settings: dict | None = None) -> BenchResults:
     """The :class:`BenchResults` of results.json's content ``data`` (read from ``path``)."""
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a JSON object, got {type(data).__name__}")
     schema = data.get("schema")
-    if schema != BENCH_SCHEMA:
+    if isinstance(schema, bool) or schema not in BENCH_SCHEMAS:
         raise InputError(f"{path}: key 'schema' is {short(schema)}; vislam reads schema "
-                         f"{BENCH_SCHEMA} (results.json of vislam bench)")
+                         f"{' or '.join(map(str, BENCH_SCHEMAS))} (results.json of vislam bench)")
     seqs = require(data, "sequences", list, str(path))
     entries = {}
     if settings is not None and isinstance(settings.get("sequences"), list):
@@ -391,6 +499,8 @@ def bench_results(data, path: Path, settings: dict | None = None) -> BenchResult
         alignment_definition=text_or_none(data.get("alignment_definition"),
                                    f"{path}: alignment_definition"),
         rpe_definition=text_or_none(data.get("rpe_definition"), f"{path}: rpe_definition"),
+        rpe_drive_definition=text_or_none(data.get("rpe_drive_definition"),
+                                          f"{path}: rpe_drive_definition"),
         estimators=names, drives=drives, wall_s=number(data.get("wall_s"), f"{path}: wall_s"),
         settings=settings)
 
