@@ -1,5 +1,5 @@
 """The results in words: ``summary.md`` of `vislam bench` (per drive the model line, readings in
-a few sentences and the table of figures) and ``score.md`` of `vislam score`; report.html shows
+a few sentences, the table of figures and the drive-fitted RPE per segment length) and ``score.md`` of `vislam score`; report.html shows
 the same text (:mod:`eval.report`).
 """
 

@@ -1,7 +1,8 @@
 """``report.html``: one self-contained page per results folder of `vislam bench`.
 
-The page holds what ``summary.md`` holds (per drive: the model line, the readings in words, the
-table) and every figure of the drive, embedded as a data URI so that the single file can be
+The page holds what ``summary.md`` holds (per drive: the model line, the readings in words, among
+them which segment lengths the RPE used, the table of figures and the RPE per segment length)
+and every figure of the drive, embedded as a data URI so that the single file can be
 mailed or archived. A small script marks ``<body data-images="loaded/total">`` once the page has
 loaded, so a headless browser can check that every image decoded (tests/test_report.py).
 """
