@@ -71,9 +71,10 @@ RPE_DEFINITION = (
 
 #: What rpe_drive_trans_pct / rpe_drive_rot_deg_per_m (and rpe_drive) mean in every output.
 RPE_DRIVE_DEFINITION = (
-    "drive-fitted RPE: segment lengths of 1, 2, 3, 4 and 5 steps, the step a tenth of the "
-    "drive's true path length rounded to one significant figure (about 10-50 % of the path; a "
-    "length spanning fewer than 5 frame steps on average is dropped); every frame starts a "
+    "relative pose error over segment lengths fitted to the drive: 1, 2, 3, 4 and 5 steps, the "
+    "step a tenth of the drive's true path length rounded to one significant figure (about "
+    "10-50 % of the path; a length spanning fewer than 5 frame steps on average is dropped); "
+    "every frame starts a "
     "segment, its end the frame whose true travelled distance is closest to the length, "
     "within 10 % of it (evo_rpe --delta_unit m --all_pairs --pairs_from_reference); "
     "translation error in % and rotation error in deg/m of each segment's true path length, "
