@@ -13,8 +13,9 @@ estimator failed).
 Per figure the change ``B − A`` is given absolutely and relative to ``|A|`` (%), with a reading:
 
 * "lower is better" figures (ATE, ATE aligned, t_rel, r_rel, the drive-fitted RPE, map RMSE,
-  the vs-smoother ATE and map RMSE, runtime): better / worse / same ("same" when they differ by at most 0.1 % of the
-  larger);
+  the vs-smoother ATE and map RMSE, runtime): better / worse / same ("same" when they differ by
+  at most 0.1 % of the larger); when two folders' drives gave the RPE different segment lengths
+  (:func:`eval.metrics.drive_segment_lengths`), a note says so;
 * NEES figures: the one closer to the two-sided 95 % chi-square band is better (distance on a
   log scale, zero inside the band); "both inside the band" when neither is outside. Bench's
   mean pose NEES (and the vs-smoother NEES) uses the band of one 6-dof NEES, its landmark NEES

@@ -42,9 +42,10 @@ Poses are ``world_T_imu`` (T, 4, 4) in float64; every figure is vectorised over 
 
   Segments, as evo's ``evo_rpe --delta L --delta_unit m --all_pairs --pairs_from_reference``
   (evo's default relative tolerance 0.1; without ``--pairs_from_reference`` evo measures the
-  path along the estimate instead of the truth): every frame ``i`` starts one; its end ``j > i`` is the frame whose travelled
-  true distance from ``i`` is closest to ``L`` (the earlier on a tie), kept only if it is within
-  10 % of ``L``. The error of a segment is evo's ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)``:
+  path along the estimate instead of the truth): every frame ``i`` starts one; its end
+  ``j > i`` is the frame whose travelled true distance from ``i`` is closest to ``L`` (the
+  earlier on a tie), kept only if it is within 10 % of ``L``; ``d`` the travelled true
+  distance from the first frame (:func:`path_distances`). The error of a segment is evo's ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)``:
   translation ``|t(E)|`` (m, and in percent of the segment's own true path length
   ``d_j - d_i``) and rotation angle (deg, and deg per metre of that length). Per length and
   over the segments of every length together: mean, median and RMSE; the drive's headline
@@ -497,7 +498,7 @@ def drive_rpe(est_poses, gt_poses, lengths=None) -> dict:
                    rot_deg_per_m=_stats(r_cat))
     elif lengths and note is None:
         out["note"] = (f"no segment of {lengths_text(lengths)} has an end within "
-                       f"{RPE_END_TOLERANCE:.0%} of its length on this drive's ground truth")
+                       f"{100 * RPE_END_TOLERANCE:g} % of its length on this drive's ground truth")
     return out
 
 

@@ -1,6 +1,6 @@
 """The results in words: ``summary.md`` of `vislam bench` (per drive the model line, readings in
-a few sentences, the table of figures and the drive-fitted RPE per segment length) and ``score.md`` of `vislam score`; report.html shows
-the same text (:mod:`eval.report`).
+a few sentences, the table of figures and the drive-fitted RPE per segment length) and
+``score.md`` of `vislam score`; report.html shows the same text (:mod:`eval.report`).
 """
 
 from __future__ import annotations
@@ -124,7 +124,7 @@ def rpe_sentence(s: dict) -> str | None:
              if not e.get("n_segments")]
     if empty:
         sentence += (f"; no segment of {lengths_text(empty)} had an end within "
-                     f"{RPE_END_TOLERANCE:.0%} of its length")
+                     f"{100 * RPE_END_TOLERANCE:g} % of its length")
     if kitti:
         sentence += "; KITTI's t_rel / r_rel over 100-800 m as well"
     else:
@@ -328,7 +328,11 @@ def score_markdown(result: dict) -> str:
         lines.append(f"Reference: the batch smoother as vislam bench runs it "
                      f"({' then '.join(ref['estimators_run'])}); its own row is scored on the "
                      "same frames.")
+    from vislam.eval.bench_scores import RPE_DRIVE_DEFINITION
+
     body = summary_markdown({"rpe_definition": result["rpe_definition"],
+                             "rpe_drive_definition": result.get("rpe_drive_definition",
+                                                                RPE_DRIVE_DEFINITION),
                              "alignment": result["alignment"],
                              "sequences": [result["sequence"]]})
     body_lines = body.splitlines()
