@@ -470,3 +470,30 @@ def test_drive_rpe_is_in_trajectory_metrics_and_kitti_drift_is_unchanged(pair):
     assert m["rpe_drive_rot_deg_per_m"] == d["rot_deg_per_m"]["mean"]
     assert m["rpe_drive_n_segments"] == d["n_segments"] > 0
     assert m["kitti_t_rel_pct"] == kitti_drift(est, gt)["t_rel_pct"]
+
+
+def test_drive_rpe_on_a_room_drive_with_stops_and_loops():
+    # A platform circling a 2 m radius in a room for 1,900 frames (16 Hz, 0.5 m/s), standing
+    # still for 2 s every 10 s: the path length, not the displacement, picks the lengths;
+    # starts inside a stop share their end, and every kept segment is within 10 % of length.
+    n, dt, speed = 1900, 1 / 16, 0.5
+    moving = (np.arange(n - 1) * dt) % 10.0 < 8.0
+    s = np.concatenate([[0.0], np.cumsum(speed * dt * moving)])
+    angle = s / 2.0
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3], gt[:, 1, 3] = 2.0 * np.cos(angle), 2.0 * np.sin(angle)
+    gt[:, :3, :3] = so3_exp(np.outer(angle, [0, 0, 1.0]))
+    dist = path_distances(gt)
+    lengths, note = drive_segment_lengths(gt)
+    assert note is None and lengths == (5.0, 10.0, 15.0, 20.0, 25.0)  # 47.5 m of path
+    for L in lengths:
+        i, j = length_segments(dist, L)
+        assert i.size > 0.8 * (n - L / (speed * dt))
+        assert np.all(np.abs(dist[j] - dist[i] - L) <= 0.1 * L + 1e-12) and np.all(j > i)
+    # A gyro scale error of 1 % (every turn 1 % too large): about 0.01 rad per rad turned,
+    # i.e. 0.01 * (180 / pi) / 2 deg per metre on a 2 m radius (to the 1e-5 by which the
+    # path between frames, chords of the circle, is shorter than its arc).
+    est = gt.copy()
+    est[:, :3, :3] = so3_exp(np.outer(1.01 * angle, [0, 0, 1.0]))
+    d = drive_rpe(est, gt)
+    assert d["rot_deg_per_m"]["median"] == pytest.approx(0.01 * np.degrees(1.0) / 2.0, rel=1e-4)
