@@ -15,7 +15,7 @@ Per figure the change ``B − A`` is given absolutely and relative to ``|A|`` (%
 * "lower is better" figures (ATE, ATE aligned, t_rel, r_rel, the drive-fitted RPE, map RMSE,
   the vs-smoother ATE and map RMSE, runtime): better / worse / same ("same" when they differ by
   at most 0.1 % of the larger); when two folders' drives gave the RPE different segment lengths
-  (:func:`eval.metrics.drive_segment_lengths`), a note says so;
+  (:func:`eval.rpe_segments.drive_segment_lengths`), a note says so;
 * NEES figures: the one closer to the two-sided 95 % chi-square band is better (distance on a
   log scale, zero inside the band); "both inside the band" when neither is outside. Bench's
   mean pose NEES (and the vs-smoother NEES) uses the band of one 6-dof NEES, its landmark NEES
@@ -59,7 +59,7 @@ from vislam.eval.compare_readings import (
     spread_test,
 )
 from vislam.eval.compare_settings import settings_diff, union
-from vislam.eval.metrics import lengths_text
+from vislam.eval.rpe_segments import lengths_text
 from vislam.eval.results import (
     NEES_FILE,
     RESULTS_FILE,

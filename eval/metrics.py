@@ -25,32 +25,15 @@ Poses are ``world_T_imu`` (T, 4, 4) in float64; every figure is vectorised over 
   segment length, averaged over all segments of all lengths: percent and degrees per 100 m.
 * Drive-fitted RPE (:func:`drive_rpe`), so that every drive with ground truth has a relative
   error, however short: KITTI's 100..800 m segments fit only drives longer than 100 m. The
-  segment lengths come from the drive's own true path length ``D`` (the distance travelled
-  along the ground truth over the scored frames), by this rule (:func:`drive_segment_lengths`):
-
-  - the step ``s`` is ``D / 10`` rounded to one significant figure (half up): 44 m of path
-    gives 4 m, 137 m gives 10 m, 2.5 km gives 300 m;
-  - the lengths are ``s, 2 s, 3 s, 4 s, 5 s``: about 10 % to 50 % of the path, as
-    rpg_trajectory_evaluation's default sub-trajectory lengths, on one readable grid like
-    ov_eval's 8, 16, ..., 40 m (a 44 m drive: 4, 8, 12, 16, 20 m);
-  - a length is kept only if it spans at least 5 frame steps on average
-    (``L >= 5 D / (n - 1)`` for n frames with ground truth); shorter ones would be the error
-    of a frame or two, and the end of a segment could not be found within its tolerance.
-    A drive of 16 frames or more always keeps a length; one of 9 to 15 frames may keep none
-    (depending on how its path length rounds), one of 8 frames or fewer never does, nor does
-    one whose truth does not move: it then says so in words (``note``).
-
-  Segments, as evo's ``evo_rpe --delta L --delta_unit m --all_pairs --pairs_from_reference``
-  (evo's default relative tolerance 0.1; without ``--pairs_from_reference`` evo measures the
-  path along the estimate instead of the truth): every frame ``i`` starts one; its end
-  ``j > i`` is the frame whose travelled true distance from ``i`` is closest to ``L`` (the
-  earlier on a tie), kept only if it is within 10 % of ``L``; ``d`` the travelled true
-  distance from the first frame (:func:`path_distances`). The error of a segment is evo's ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)``:
-  translation ``|t(E)|`` (m, and in percent of the segment's own true path length
-  ``d_j - d_i``) and rotation angle (deg, and deg per metre of that length). Per length and
-  over the segments of every length together: mean, median and RMSE; the drive's headline
-  figures (the bench table's "RPE (%)" and "RPE (°/m)") are the means over all segments of
-  all lengths, as KITTI's t_rel / r_rel are over its segments.
+  segment lengths come from the drive's own true path (1 to 5 steps of a tenth of it, rounded
+  to one significant figure) and each frame starts a segment whose end is the frame closest to
+  the length along the true path, within 10 % (evo's all-pairs segments): the rule in full is
+  :mod:`eval.rpe_segments`. The error of a segment is evo's ``E = (Q_i^-1 Q_j)^-1 (P_i^-1
+  P_j)``: translation ``|t(E)|`` (m, and in percent of the segment's own true path length) and
+  rotation angle (deg, and deg per metre of that length). Per length and over the segments of
+  every length together: mean, median and RMSE; the drive's headline figures (the bench
+  table's "RPE (%)" and "RPE (°/m)") are the means over all segments of all lengths, as
+  KITTI's t_rel / r_rel are over its segments.
 * NEES of poses in the :class:`ekf.estimate.Estimate` convention: right perturbation,
   translation first, ``xi = se3_log(inv(est) @ gt)``, ``NEES = xi^T cov^-1 xi`` (6 dof);
   of points ``e = gt - est`` (3 dof).
@@ -64,19 +47,17 @@ import numpy as np
 
 from vislam.ekf.errors import InputError
 from vislam.ekf.geometry import se3_inv, se3_log, vee
+from vislam.eval.rpe_segments import (
+    RPE_END_TOLERANCE,
+    drive_segment_lengths,
+    length_segments,
+    lengths_text,
+    path_distances,
+)
 
 #: Segment lengths (m) of the KITTI odometry benchmark.
 KITTI_LENGTHS = (100, 200, 300, 400, 500, 600, 700, 800)
 
-#: The drive-fitted RPE (module docstring, :func:`drive_rpe`): the step is this fraction of the
-#: true path length, rounded to one significant figure ...
-RPE_STEP_FRACTION = 0.1
-#: ... the lengths are 1, 2, ..., this many steps ...
-RPE_STEPS = 5
-#: ... each spanning at least this many frame steps on average ...
-RPE_MIN_FRAME_STEPS = 5
-#: ... and a segment's end is within this fraction of its length (evo's default rel_tol).
-RPE_END_TOLERANCE = 0.1
 
 #: The trajectory alignments before an aligned ATE (see the module docstring); "se3" is the
 #: default everywhere.
@@ -370,81 +351,6 @@ def kitti_drift(est_poses, gt_poses, lengths=KITTI_LENGTHS, step: int = 10) -> d
 # --------------------------------------------------------------------------- drive-fitted RPE
 
 
-def path_distances(poses) -> np.ndarray:
-    """Distance travelled along ``poses`` (T, 4, 4) up to each pose (T,), from 0 (the KITTI
-    devkit's ``trajectoryDistances``, evo's path length)."""
-    p = _poses(poses, "trajectory")[:, :3, 3]
-    if p.shape[0] == 0:
-        return np.zeros(0)
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
-
-
-def readable_length(x: float) -> float:
-    """``x`` > 0 rounded to one significant figure, half up (4.4 -> 4, 13.7 -> 10, 250 -> 300,
-    0.072 -> 0.07), as the float nearest that decimal."""
-    exponent = math.floor(math.log10(x))
-    digit = math.floor(x / 10.0**exponent + 0.5)
-    return float(f"{digit}e{exponent}")
-
-
-def lengths_text(lengths) -> str:
-    """Segment lengths (m) in words: "4, 8, 12, 16 and 20 m", "5 m", "none"."""
-    shown = [f"{float(x):g}" for x in lengths]
-    if not shown:
-        return "none"
-    return (shown[0] if len(shown) == 1 else ", ".join(shown[:-1]) + " and " + shown[-1]) + " m"
-
-
-def drive_segment_lengths(gt_poses) -> tuple[tuple[float, ...], str | None]:
-    """The segment lengths (m) of the drive-fitted RPE for the true poses ``gt_poses`` (n, 4, 4),
-    by the rule of the module docstring (step ``D / 10`` to one significant figure, lengths 1..5
-    steps, each at least 5 frame steps on average), and None; or no lengths and why, in words
-    (a clause that reads after "No RPE: ").
-    Depends on the truth alone, so every estimator of a drive gets the same lengths."""
-    gt = _poses(gt_poses, "ground truth")
-    n = gt.shape[0]
-    if n < 2:
-        return (), f"only {n} frame{'' if n == 1 else 's'} with ground truth"
-    dist = path_distances(gt)
-    total = float(dist[-1])
-    if not (math.isfinite(total) and total > 0.0):
-        return (), f"the true path of the {n} frames with ground truth does not move"
-    step = readable_length(RPE_STEP_FRACTION * total)
-    digit, exponent = f"{step:.0e}".split("e")
-    candidates = [float(f"{k * int(digit)}e{int(exponent)}") for k in range(1, RPE_STEPS + 1)]
-    shortest = RPE_MIN_FRAME_STEPS * total / (n - 1)
-    lengths = tuple(L for L in candidates if L >= shortest)
-    if lengths:
-        return lengths, None
-    # The step is at least 1/1.5 of a tenth of the path (1.49 rounds to 1), so the longest
-    # length is at least a third of it, which spans 5 frame steps from 16 frames on.
-    enough = math.ceil(RPE_MIN_FRAME_STEPS * 1.5 / (RPE_STEPS * RPE_STEP_FRACTION)) + 1
-    return (), (f"the drive is too short: {n} frames with ground truth over {total:.3g} m of "
-                f"true path, and its segment lengths ({lengths_text(candidates)}) would each "
-                f"span fewer than {RPE_MIN_FRAME_STEPS} frame steps ({shortest:.3g} m here); "
-                f"a drive of {enough} frames or more always has one")
-
-
-def length_segments(distances: np.ndarray, length: float,
-                    tolerance: float = RPE_END_TOLERANCE) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs (i, j) of the segments of ``length`` (m) on a path with travelled distances
-    ``distances`` (n,), non-decreasing: every i a start, j > i the frame whose distance from i
-    is closest to ``length`` (the earlier on a tie), kept where that is within
-    ``tolerance * length`` (evo's all-pairs path mode)."""
-    dist = np.asarray(distances, dtype=np.float64)
-    n = dist.size
-    i = np.arange(n)
-    target = dist + length
-    hi = np.searchsorted(dist, target, side="left")  # the first frame at or beyond the target
-    lo = hi - 1  # the last frame before it (at least i, since length > 0)
-    hi_c = np.minimum(hi, n - 1)
-    over = np.where(hi < n, dist[hi_c] - target, np.inf)
-    under = np.where(lo > i, target - dist[np.maximum(lo, 0)], np.inf)
-    j = np.where(over < under, hi_c, lo)
-    ok = np.minimum(over, under) <= tolerance * length
-    return i[ok], j[ok]
-
-
 def _stats(x: np.ndarray) -> dict | None:
     """mean, median and RMSE of ``x``; None for no values."""
     if x.size == 0:
@@ -455,7 +361,7 @@ def _stats(x: np.ndarray) -> dict | None:
 def drive_rpe(est_poses, gt_poses, lengths=None) -> dict:
     """The drive-fitted relative pose error (module docstring) of ``est_poses`` against
     ``gt_poses`` (same frames, (n, 4, 4) each). ``lengths`` (m): None for the drive's own
-    (:func:`drive_segment_lengths`).
+    (:func:`eval.rpe_segments.drive_segment_lengths`).
 
     Returns a JSON-ready dict: ``lengths_m`` (list), ``path_length_m`` (the true path),
     ``frames``, ``n_segments``, ``trans_pct`` and ``rot_deg_per_m`` over the segments of every

@@ -9,7 +9,8 @@ import math
 
 from vislam.ekf.model import long_run_pixel_sigma
 from vislam.eval.consistency import POSE_NEES_BAND, reference_honesty
-from vislam.eval.metrics import ALIGN_DESCRIPTIONS, RPE_END_TOLERANCE, lengths_text
+from vislam.eval.metrics import ALIGN_DESCRIPTIONS
+from vislam.eval.rpe_segments import RPE_END_TOLERANCE, lengths_text
 
 
 def format_figure(x, digits=2) -> str:

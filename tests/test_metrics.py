@@ -13,10 +13,6 @@ from vislam.eval.metrics import (
     align_trajectory,
     ate_rmse,
     drive_rpe,
-    drive_segment_lengths,
-    length_segments,
-    path_distances,
-    readable_length,
     interval_errors,
     kitti_drift,
     nees,
@@ -26,6 +22,13 @@ from vislam.eval.metrics import (
     trajectory_metrics,
     turn_scale_error,
     umeyama,
+)
+
+from vislam.eval.rpe_segments import (
+    drive_segment_lengths,
+    length_segments,
+    path_distances,
+    readable_length,
 )
 
 import evo.core.metrics as evo_metrics  # noqa: E402  (evo: the test extra)
