@@ -9,6 +9,8 @@
     for drive in res.bench.drives.values():
         for est in drive.estimators.values():
             print(drive.name, est.name, est.ate_aligned_m, est.nees_pose_mean)
+            if est.rpe_drive is not None:  # the drive-fitted RPE: mean % over its segments
+                print(est.rpe_drive_trans_pct, est.rpe_drive.lengths_text, est.rpe_drive.note)
     joint = res.bench.drives["sim-seed0"].estimators["ekf-joint"].load_estimate()
 
 A folder may hold either kind or both (``Results.bench``, ``Results.nees``; None where absent).
