@@ -2,8 +2,11 @@
 
 Observations are stored frame by frame in compressed-row form (:class:`Observations`): the
 observations of frame ``t`` are rows ``frame_ptr[t]:frame_ptr[t+1]`` of ``track`` and ``z``,
-so one frame's lookup costs O(observations of that frame). The raw (4, M, T) array of the
-data files is over 98 % empty (-1) and is never kept.
+so one frame's lookup costs O(observations of that frame). The dense (4, M, T) array of the
+published data files is over 98 % empty (-1) and is never kept; the sparse file layout (one row
+per observation, :mod:`eval.loader`) maps onto these rows directly. Pixels are stereo
+``[uL, vL, uR, vR]`` (four columns) or monocular ``[u, v]`` (two): see
+:attr:`Observations.camera`.
 """
 
 from __future__ import annotations
@@ -51,12 +54,18 @@ class Calibration:
         return float(self.K[1, 2])
 
 
+#: Pixel columns of a stereo observation ``[uL, vL, uR, vR]`` and of a monocular one ``[u, v]``.
+STEREO_COLUMNS = 4
+MONO_COLUMNS = 2
+
+
 @dataclass(frozen=True)
 class Observations:
-    """Stereo observations sorted by frame (compressed rows).
+    """Observations sorted by frame (compressed rows).
 
-    ``frame_ptr`` (T+1,) int64; ``track`` (N,) int64 track index; ``z`` (N, 4) pixels
-    ``[uL, vL, uR, vR]``. Within a frame, rows are sorted by track index.
+    ``frame_ptr`` (T+1,) int64; ``track`` (N,) int64 track index; ``z`` (N, 4) stereo pixels
+    ``[uL, vL, uR, vR]``, or (N, 2) monocular pixels ``[u, v]`` (:attr:`camera` says which).
+    Within a frame, rows are sorted by track index.
     """
 
     frame_ptr: np.ndarray
@@ -64,7 +73,7 @@ class Observations:
     z: np.ndarray
 
     def frame(self, t: int) -> tuple[np.ndarray, np.ndarray]:
-        """Track indices (n,) and pixels (n, 4) observed at frame ``t``."""
+        """Track indices (n,) and pixels (n, 4) (monocular: (n, 2)) observed at frame ``t``."""
         a, b = self.frame_ptr[t], self.frame_ptr[t + 1]
         return self.track[a:b], self.z[a:b]
 
@@ -79,18 +88,32 @@ class Observations:
         """Number of observations per frame (T,)."""
         return np.diff(self.frame_ptr)
 
+    @property
+    def is_stereo(self) -> bool:
+        """True for stereo pixels (four columns), False for monocular ones (two)."""
+        return self.z.ndim != 2 or self.z.shape[1] != MONO_COLUMNS
+
+    @property
+    def camera(self) -> str:
+        """``"stereo"`` (``z`` has four columns ``[uL, vL, uR, vR]``) or ``"monocular"`` (two,
+        ``[u, v]``). Today's estimators take stereo observations only."""
+        return "stereo" if self.is_stereo else "monocular"
+
     def __len__(self) -> int:
         return int(self.track.size)
 
     @classmethod
     def from_rows(cls, frame: np.ndarray, track: np.ndarray, z: np.ndarray, n_frames: int):
-        """Build from unsorted (frame, track, z) rows."""
+        """Build from unsorted (frame, track, z) rows; ``z`` (N, 4) stereo or (N, 2)
+        monocular pixels (anything else is read as stereo rows of four)."""
         frame = np.asarray(frame, dtype=np.int64)
         track = np.asarray(track, dtype=np.int64)
+        z = np.asarray(z, dtype=float)
+        width = MONO_COLUMNS if z.ndim == 2 and z.shape[1] == MONO_COLUMNS else STEREO_COLUMNS
         order = np.lexsort((track, frame))
         ptr = np.zeros(n_frames + 1, dtype=np.int64)
         np.cumsum(np.bincount(frame, minlength=n_frames), out=ptr[1:])
-        return cls(ptr, track[order], np.asarray(z, dtype=float)[order].reshape(-1, 4))
+        return cls(ptr, track[order], z[order].reshape(-1, width))
 
     @classmethod
     def from_dense(cls, features: np.ndarray) -> "Observations":
@@ -102,9 +125,11 @@ class Observations:
         return cls.from_rows(frame, track, z, features.shape[2])
 
     def to_dense(self, n_tracks: int) -> np.ndarray:
-        """The (4, M, T) array of the data files (-1 where not observed)."""
+        """The (4, M, T) array of the dense data files (-1 where not observed); (2, M, T) for
+        monocular pixels. It takes 8 x columns x M x T bytes: vislam's own readers and writers
+        never build it (the sparse layout is what they write)."""
         T = self.frame_ptr.size - 1
-        out = -np.ones((4, n_tracks, T))
+        out = -np.ones((self.z.shape[1] if self.z.ndim == 2 else STEREO_COLUMNS, n_tracks, T))
         out[:, self.track, self.frame_index] = self.z.T
         return out
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from vislam.eval.export import FLOAT_FORMAT, atomic_write, save_npz_reproducible
+from vislam.eval.loader import sparse_arrays
 
 
 def camera_groundtruth(poses: np.ndarray, cam_T_imu: np.ndarray) -> np.ndarray:
@@ -27,9 +28,11 @@ def write_simulation(
     """Write a drive (an :class:`eval.simulate.SimResult`) as the shared data lays it out;
     returns the paths by role.
 
-    * ``data``: ``out_dir/NAME.npz``, the real data's keys and shapes (features (4, M, T) with
-      -1 where unobserved, time_stamps (1, T), linear/rotational_velocity (3, T), K, b,
-      cam_T_imu);
+    * ``data``: ``out_dir/NAME.npz``, the real data's keys and shapes (time_stamps (1, T),
+      linear/rotational_velocity (3, T), K, b, cam_T_imu) with the observations in the sparse
+      layout (obs_frame (N,), obs_track (N,), obs_pixels (N, 4), n_tracks: one row per
+      observation, in frame then track order; :mod:`eval.loader`): nothing of size tracks x
+      frames is built, so the file and its writing grow with the observations;
     * ``groundtruth``: ``out_dir/groundtruth/NAME.txt``, KITTI poses of the left camera with the
       time since frame 0 prepended (13 columns);
     * ``landmarks``: ``out_dir/NAME_landmarks.npz`` with ``landmarks`` (n_tracks, 3) the true
@@ -50,7 +53,7 @@ def write_simulation(
     calib = seq.calibration
     data = {
         "time_stamps": seq.timestamps[None, :],
-        "features": seq.obs.to_dense(seq.n_tracks),
+        **sparse_arrays(seq.obs, seq.n_tracks),
         "linear_velocity": seq.linear_velocity.T,
         "rotational_velocity": seq.angular_velocity.T,
         "K": calib.K,

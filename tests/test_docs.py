@@ -92,7 +92,8 @@ def test_readme_drive_sketch_writes_a_drive_vislam_reads(tmp_path, monkeypatch):
     rows = np.loadtxt(sim / "groundtruth" / "sim-seed3.txt", ndmin=2)
     cam_poses = np.tile(np.eye(4), (len(rows), 1, 1))
     cam_poses[:, :3, :] = rows[:, -12:].reshape(-1, 3, 4)  # a time column may come first
-    names = {"t": arrays["time_stamps"].ravel(), "z": arrays["features"],
+    names = {"t": arrays["time_stamps"].ravel(), "frame": arrays["obs_frame"],
+             "track": arrays["obs_track"], "px": arrays["obs_pixels"],
              "v": arrays["linear_velocity"], "w": arrays["rotational_velocity"],
              "K": arrays["K"], "b": float(arrays["b"]), "cam_T_imu": arrays["cam_T_imu"],
              "cam_poses": cam_poses}
@@ -107,8 +108,10 @@ def test_readme_drive_sketch_writes_a_drive_vislam_reads(tmp_path, monkeypatch):
     np.testing.assert_array_equal(ours.timestamps, theirs.timestamps)
     np.testing.assert_array_equal(ours.linear_velocity, theirs.linear_velocity)
     np.testing.assert_array_equal(ours.angular_velocity, theirs.angular_velocity)
-    np.testing.assert_array_equal(ours.obs.to_dense(ours.n_tracks),
-                                  theirs.obs.to_dense(theirs.n_tracks))
+    assert ours.n_tracks == theirs.n_tracks
+    np.testing.assert_array_equal(ours.obs.frame_ptr, theirs.obs.frame_ptr)
+    np.testing.assert_array_equal(ours.obs.track, theirs.obs.track)
+    np.testing.assert_array_equal(ours.obs.z, theirs.obs.z)
     gt_ours = find_ground_truth(mine / "mydrive.npz")
     gt_theirs = find_ground_truth(sim / "sim-seed3.npz")
     np.testing.assert_allclose(gt_ours.poses, gt_theirs.poses, atol=1e-12)

@@ -53,12 +53,15 @@ def test_written_layout_matches_the_shared_data(tmp_path):
     assert paths["groundtruth"] == tmp_path / "groundtruth" / "drive.txt"
     assert paths["landmarks"] == tmp_path / "drive_landmarks.npz"
     seq = result.sequence
-    T, M = seq.n_frames, seq.n_tracks
+    T, M, N = seq.n_frames, seq.n_tracks, len(seq.obs)
     with np.load(paths["data"]) as d:
         shapes = {k: d[k].shape for k in d.files}
-        assert shapes == {
+        assert shapes == {  # the sparse observation layout: nothing of size tracks x frames
             "time_stamps": (1, T),
-            "features": (4, M, T),
+            "obs_frame": (N,),
+            "obs_track": (N,),
+            "obs_pixels": (N, 4),
+            "n_tracks": (),
             "linear_velocity": (3, T),
             "rotational_velocity": (3, T),
             "K": (3, 3),
@@ -66,10 +69,12 @@ def test_written_layout_matches_the_shared_data(tmp_path):
             "cam_T_imu": (4, 4),
         }
         np.testing.assert_array_equal(d["cam_T_imu"], KITTI_CAM_T_IMU)
-        f = d["features"]
-        unobserved = np.all(f == -1, axis=0)
-        assert np.all(unobserved | np.all(f != -1, axis=0))
-        assert (~unobserved).sum() == len(seq.obs)
+        assert d["obs_frame"].dtype == np.int64 and d["obs_track"].dtype == np.int64
+        assert int(d["n_tracks"]) == M
+        np.testing.assert_array_equal(d["obs_frame"], seq.obs.frame_index)
+        np.testing.assert_array_equal(d["obs_track"], seq.obs.track)
+        np.testing.assert_array_equal(d["obs_pixels"], seq.obs.z)
+        assert np.all(d["obs_pixels"] >= 0)
         np.testing.assert_array_equal(d["linear_velocity"], seq.linear_velocity.T)
     # Ground truth: 13 columns, time since frame 0, left-camera poses; P(0) = I.
     gt = np.loadtxt(paths["groundtruth"])
@@ -219,6 +224,29 @@ def test_written_file_loads_back_as_the_same_sequence(tmp_path):
     seq = result.sequence
     assert_same_sequence(loaded, seq, name=False)
     np.testing.assert_array_equal(loaded.calibration.cam_T_imu, seq.calibration.cam_T_imu)
+
+
+def test_default_drive_read_back_is_the_drive_in_memory(default_result, tmp_path):
+    from vislam.eval.loader import load_sequence
+
+    paths = write_simulation(default_result, tmp_path)
+    seq = default_result.sequence
+    loaded = load_sequence(paths["data"])
+    assert_same_sequence(loaded, seq)
+    np.testing.assert_array_equal(loaded.track_origin, seq.track_origin)
+    # the file grows with the observations: 48 bytes a row before compression, against the
+    # dense layout's 32 bytes a track and frame
+    assert paths["data"].stat().st_size < 48 * len(seq.obs)
+
+
+def test_a_drive_the_reader_would_refuse_is_not_written(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("VISLAM_MAX_ARRAY_BYTES", str(200 * 32))  # 200 stereo rows
+    out = tmp_path / "sim"
+    assert cli_main(["simulate", "--out", str(out), "--frames", "20"]) == 2
+    err = capsys.readouterr().err
+    assert "VISLAM_MAX_ARRAY_BYTES" in err and "observations" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists() or not any(out.iterdir())
 
 
 @pytest.mark.parametrize("flags, message", [

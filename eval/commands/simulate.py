@@ -186,9 +186,25 @@ def _sigma_arg(args: argparse.Namespace, dest: str, default):
     return tuple(float(x) for x in values)
 
 
-#: Largest dense feature array (4, M, T) of float64 it writes; the data format is dense.
-MAX_FEATURE_BYTES = 2 * 1024**3
 _NAME_OK = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")
+
+
+def check_readable(seq, frames: int) -> None:
+    """Refuse a drive whose file vislam's reader would refuse: its sparse observations (8 bytes
+    a pixel coordinate) or its per-track arrays beyond ``VISLAM_MAX_ARRAY_BYTES``. The file
+    grows with the observations (the sparse layout), not with tracks x frames."""
+    from vislam.eval.drive_keys import BYTES_PER_TRACK
+    from vislam.eval.safe_reading import MAX_ARRAY_BYTES_ENV, max_array_bytes
+
+    limit = max_array_bytes()
+    pixel_bytes = int(seq.obs.z.size) * 8
+    track_bytes = int(seq.n_tracks) * BYTES_PER_TRACK
+    if max(pixel_bytes, track_bytes) > limit:
+        raise InputError(
+            f"--frames {frames}: the drive's {len(seq.obs)} observations ({pixel_bytes} bytes "
+            f"of pixels) and {seq.n_tracks} tracks ({track_bytes} bytes of per-track arrays) "
+            f"pass the reader's limit of {limit} bytes an array ({MAX_ARRAY_BYTES_ENV}): "
+            "vislam could not read the file; use fewer frames or a lower --landmark-density")
 
 
 def check_name(name: str) -> None:
@@ -214,13 +230,7 @@ def run(args: argparse.Namespace) -> int:
         start = time.perf_counter()
         result = simulate(config)
         sim_s = time.perf_counter() - start
-        dense = 4 * result.sequence.n_tracks * result.sequence.n_frames * 8
-        if dense > MAX_FEATURE_BYTES:
-            raise InputError(
-                f"--frames {args.frames}: the drive's dense feature array would take "
-                f"{dense / 1024**3:.1f} GiB (limit {MAX_FEATURE_BYTES / 1024**3:.0f} GiB); "
-                "use fewer frames or a lower --landmark-density"
-            )
+        check_readable(result.sequence, args.frames)
         staged = write_simulation(result, tmp, config.name)
     paths = {role: Path(args.out) / p.relative_to(tmp) for role, p in staged.items()}
     stats = simulation_stats(result)
