@@ -16,7 +16,12 @@ from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import EstimationError
 from vislam.ekf.estimate import Estimate
 from vislam.eval.atomic import atomic_symlink, write_json, write_text
-from vislam.eval.bench_scores import RPE_DEFINITION, SCHEMA, score_sequence
+from vislam.eval.bench_scores import (
+    RPE_DEFINITION,
+    RPE_DRIVE_DEFINITION,
+    SCHEMA,
+    score_sequence,
+)
 from vislam.eval.drive_figures import sequence_figures
 from vislam.eval.drives import BenchSequence
 from vislam.eval.export import write_tum
@@ -100,6 +105,7 @@ def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smo
     results = {
         "schema": SCHEMA,
         "rpe_definition": RPE_DEFINITION,
+        "rpe_drive_definition": RPE_DRIVE_DEFINITION,
         "reference": "vs_smoother compares with the batch smoother ('smoother'), or with "
                      "'smoother-isam2' when only that ran",
         "alignment": align,

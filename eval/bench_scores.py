@@ -1,19 +1,28 @@
 """The figures of ``results.json``: each estimator on a drive scored against ground truth and
 against the smoother's estimate on the same data.
 
-``results.json`` (schema 1)::
+``results.json`` (schema 2)::
 
-    {"schema": 1, "rpe_definition": ..., "reference": ..., "alignment": "se3",
-     "alignment_definition": ..., "sequences": [
+    {"schema": 2, "rpe_definition": ..., "rpe_drive_definition": ..., "reference": ...,
+     "alignment": "se3", "alignment_definition": ..., "sequences": [
         {"name", "path", "frames", "has_ground_truth", "has_landmark_truth",
          "estimators": [
             {"name", "error", "runtime_s", "frames_per_s", "landmarks",
              "ate_m", "ate_aligned_m", "rpe_trans_pct", "rpe_rot_deg_per_100m",
+             "rpe_drive_trans_pct", "rpe_drive_rot_deg_per_m", "rpe_drive",
              "nees_pose_mean", "map_rmse_m", "nees_landmark_mean",
              "vs_smoother": {"ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean",
                              "inside_95_fraction"}}, ...]}, ...]}
 
-Every key is always present; a figure that cannot be computed is null. ``alignment`` is the
+Every key is always present; a figure that cannot be computed is null. ``rpe_trans_pct`` /
+``rpe_rot_deg_per_100m`` are KITTI's drift over 100-800 m (null on a drive shorter than 100 m);
+``rpe_drive_trans_pct`` / ``rpe_drive_rot_deg_per_m`` the drive-fitted RPE over segment lengths
+chosen from the drive's own true path (:func:`eval.metrics.drive_rpe`: mean over all segments),
+and ``rpe_drive`` its detail: the lengths used, the true path length, per length the number of
+segments and mean / median / RMSE of the translation error (m, %) and rotation error (deg,
+deg/m), and ``note``, in words why there is no figure (null when there is one). ``rpe_drive`` is
+null only without ground truth or for a failed estimator. Schema 1 (before ``rpe_drive``) is
+read too (:mod:`eval.results`). ``alignment`` is the
 alignment before every ``ate_aligned_m`` (against ground truth and against the smoother): one
 of :data:`eval.metrics.ALIGN_MODES` (``--align``; "se3" by default, and in files written before
 the key existed), ``alignment_definition`` says it in words. ``map_rmse_m`` and
@@ -34,16 +43,21 @@ from vislam.eval.consistency import (
     versus_smoother,
 )
 from vislam.eval.drives import BenchSequence
-from vislam.eval.metrics import check_align_mode, kitti_drift
+from vislam.eval.metrics import check_align_mode, drive_rpe, kitti_drift
 from vislam.eval.registry import SMOOTHERS
 from vislam.eval.study import JobFailure, JobResult
 
-SCHEMA = 1
+#: The results.json schema written here; 2 added the drive-fitted RPE (``rpe_drive*``).
+SCHEMA = 2
 ESTIMATOR_KEYS = (
     "name", "error", "runtime_s", "frames_per_s", "landmarks", "ate_m", "ate_aligned_m",
-    "rpe_trans_pct", "rpe_rot_deg_per_100m", "nees_pose_mean", "map_rmse_m",
-    "nees_landmark_mean", "vs_smoother",
+    "rpe_trans_pct", "rpe_rot_deg_per_100m", "rpe_drive_trans_pct", "rpe_drive_rot_deg_per_m",
+    "rpe_drive", "nees_pose_mean", "map_rmse_m", "nees_landmark_mean", "vs_smoother",
 )
+#: The trajectory figures of a row (:func:`trajectory_scores`), in the row's order.
+TRAJECTORY_KEYS = ("ate_m", "ate_aligned_m", "rpe_trans_pct", "rpe_rot_deg_per_100m",
+                   "rpe_drive_trans_pct", "rpe_drive_rot_deg_per_m", "rpe_drive",
+                   "nees_pose_mean")
 VS_SMOOTHER_KEYS = ("ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean", "inside_95_fraction")
 SEQUENCE_KEYS = ("name", "path", "frames", "has_ground_truth", "has_landmark_truth", "model",
                  "estimators")
@@ -55,18 +69,35 @@ RPE_DEFINITION = (
     "trajectory is shorter than the shortest segment"
 )
 
+#: What rpe_drive_trans_pct / rpe_drive_rot_deg_per_m (and rpe_drive) mean in every output.
+RPE_DRIVE_DEFINITION = (
+    "relative pose error over segment lengths fitted to the drive: 1, 2, 3, 4 and 5 steps, the "
+    "step a tenth of the drive's true path length rounded to one significant figure (about "
+    "10-50 % of the path; a length spanning fewer than 5 frame steps on average is dropped); "
+    "every frame starts a "
+    "segment, its end the frame whose true travelled distance is closest to the length, "
+    "within 10 % of it (evo_rpe --delta_unit m --all_pairs --pairs_from_reference); "
+    "translation error in % and rotation error in deg/m of each segment's true path length, "
+    "the mean over all segments of all lengths (eval.metrics.drive_rpe); rpe_drive holds the "
+    "lengths and, per length, mean / median / RMSE in m, %, deg and deg/m"
+)
+
 
 def trajectory_scores(est: Estimate, gt, align: str = "se3") -> dict:
     """ATE (raw and aligned by ``align``, one of eval.metrics.ALIGN_MODES, recorded as
-    ``alignment``), KITTI drift and mean pose NEES of ``est`` against ground truth ``gt``
-    (frames, poses) on the frames both have; every figure None without ``gt``. An unknown
-    ``align`` is an InputError."""
+    ``alignment``), KITTI drift, the drive-fitted RPE (``rpe_drive``: its detail, with the
+    reason in words where it has no figure) and mean pose NEES of ``est`` against ground truth
+    ``gt`` (frames, poses) on the frames both have; every figure None without ``gt``. An
+    unknown ``align`` is an InputError."""
     check_align_mode(align)
     out = {
         "ate_m": None,
         "ate_aligned_m": None,
         "rpe_trans_pct": None,
         "rpe_rot_deg_per_100m": None,
+        "rpe_drive_trans_pct": None,
+        "rpe_drive_rot_deg_per_m": None,
+        "rpe_drive": None,
         "nees_pose_mean": None,
         "gt_frames": 0,
         "alignment": align,
@@ -76,6 +107,10 @@ def trajectory_scores(est: Estimate, gt, align: str = "se3") -> dict:
     frames = np.asarray(gt.frames, dtype=np.int64)
     keep = (frames >= 0) & (frames < est.n_frames)
     frames, gt_poses = frames[keep], np.asarray(gt.poses)[keep]
+    fitted = _finite(drive_rpe(est.poses[frames], gt_poses))
+    out["rpe_drive"] = fitted
+    out["rpe_drive_trans_pct"] = (fitted["trans_pct"] or {}).get("mean")
+    out["rpe_drive_rot_deg_per_m"] = (fitted["rot_deg_per_m"] or {}).get("mean")
     if frames.size < 2:
         return out
     est_poses = est.poses[frames]
@@ -101,6 +136,17 @@ def _num(x) -> float | None:
     except (TypeError, ValueError):
         return None
     return x if np.isfinite(x) else None
+
+
+def _finite(x):
+    """``x`` (nested dicts and lists of figures) with every non-finite number made None."""
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite(v) for v in x]
+    if isinstance(x, float):
+        return _num(x)
+    return x
 
 
 def reference_smoother(ests: dict[str, Estimate]) -> str | None:
@@ -130,7 +176,7 @@ def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict,
         row["frames_per_s"] = est.n_frames / o.wall_s if o.wall_s > 0 else None
         row["landmarks"] = int(np.count_nonzero(est.has_landmark))
         scores = trajectory_scores(est, bs.gt, align=align)
-        for k in ("ate_m", "ate_aligned_m", "rpe_trans_pct", "rpe_rot_deg_per_100m", "nees_pose_mean"):
+        for k in TRAJECTORY_KEYS:
             row[k] = scores[k]
         if bs.landmark_truth is not None and row["landmarks"]:
             row["map_rmse_m"] = landmark_rmse(est, bs.landmark_truth)

@@ -12,9 +12,10 @@ estimator failed).
 
 Per figure the change ``B − A`` is given absolutely and relative to ``|A|`` (%), with a reading:
 
-* "lower is better" figures (ATE, ATE aligned, t_rel, r_rel, map RMSE, the vs-smoother ATE and
-  map RMSE, runtime): better / worse / same ("same" when they differ by at most 0.1 % of the
-  larger);
+* "lower is better" figures (ATE, ATE aligned, t_rel, r_rel, the drive-fitted RPE, map RMSE,
+  the vs-smoother ATE and map RMSE, runtime): better / worse / same ("same" when they differ by
+  at most 0.1 % of the larger); when two folders' drives gave the RPE different segment lengths
+  (:func:`eval.rpe_segments.drive_segment_lengths`), a note says so;
 * NEES figures: the one closer to the two-sided 95 % chi-square band is better (distance on a
   log scale, zero inside the band); "both inside the band" when neither is outside. Bench's
   mean pose NEES (and the vs-smoother NEES) uses the band of one 6-dof NEES, its landmark NEES
@@ -58,6 +59,7 @@ from vislam.eval.compare_readings import (
     spread_test,
 )
 from vislam.eval.compare_settings import settings_diff, union
+from vislam.eval.rpe_segments import lengths_text
 from vislam.eval.results import (
     NEES_FILE,
     RESULTS_FILE,
@@ -81,6 +83,8 @@ BENCH_FIGURES = (
     ("ate_aligned_m", "ATE al. (m)", "lower", None),
     ("rpe_trans_pct", "t_rel (%)", "lower", None),
     ("rpe_rot_deg_per_100m", "r_rel (°/100m)", "lower", None),
+    ("rpe_drive_trans_pct", "RPE (%)", "lower", None),
+    ("rpe_drive_rot_deg_per_m", "RPE (°/m)", "lower", None),
     ("nees_pose_mean", "NEES", "band", POSE_DOF),
     ("map_rmse_m", "map RMSE (m)", "lower", None),
     ("nees_landmark_mean", "lm NEES", "band", LANDMARK_DOF),
@@ -93,7 +97,8 @@ BENCH_FIGURES = (
 )
 #: The bench figures drawn in compare.png (those with a value somewhere).
 PLOT_FIGURES = ("ate_m", "ate_aligned_m", "rpe_trans_pct", "rpe_rot_deg_per_100m",
-                "nees_pose_mean", "map_rmse_m", "nees_landmark_mean", "runtime_s")
+                "rpe_drive_trans_pct", "rpe_drive_rot_deg_per_m", "nees_pose_mean", "map_rmse_m",
+                "nees_landmark_mean", "runtime_s")
 
 SPREAD_NOTE = ("beyond the spread: Welch's t-test (unequal variances) on the two folders' "
                "per-run mean pose NEES rejects equal means at 5 % (two-sided); "
@@ -244,6 +249,7 @@ def _bench_section(name: str, folders: list[Folder]) -> Section:
                          if fr is not None) + f"; {gt}"
     notes = [f"sequence {name!r} is not in {f.label} ({f.shown})"
              for f, s in zip(folders, seqs) if s is None]
+    notes += _rpe_lengths_notes(folders, seqs)
     rows: list[Row] = []
     present = {}
     for est in estimators:
@@ -277,6 +283,28 @@ def _bench_section(name: str, folders: list[Folder]) -> Section:
             notes.append(f"{est} is not in {', '.join(missing)}")
         rows += est_rows
     return Section("bench", f"{name} ({what})", folders, estimators, rows, notes, present)
+
+
+def _rpe_lengths(drive: DriveResult | None) -> tuple[float, ...] | None:
+    """The segment lengths of a drive's RPE (None: the folder has none for the drive)."""
+    if drive is None:
+        return None
+    return next((e.rpe_drive.lengths_m for e in drive.estimators.values()
+                 if e.rpe_drive is not None and e.rpe_drive.lengths_m), None)
+
+
+def _rpe_lengths_notes(folders: list[Folder], seqs: list[DriveResult | None]) -> list[str]:
+    """A note on the RPE's segment lengths: which ones, and a warning where the folders used
+    different ones (their RPE rows then compare different segments)."""
+    held = [(f, _rpe_lengths(s)) for f, s in zip(folders, seqs)]
+    held = [(f, lengths) for f, lengths in held if lengths is not None]
+    if not held:
+        return []
+    if len({lengths for _, lengths in held}) == 1:
+        return [f"RPE over segments of {lengths_text(held[0][1])}"]
+    per = "; ".join(f"{f.label}: {lengths_text(lengths)}" for f, lengths in held)
+    return [f"RPE over different segment lengths ({per}): the RPE rows compare different "
+            "segments (the lengths follow each folder's true path)"]
 
 
 def _nees_section(folders: list[Folder]) -> Section:

@@ -12,7 +12,7 @@ from vislam.eval.compare_readings import ABSENT, NO_VALUE
 COMPARE_FILES = ("compare.md", "compare.tex", "compare.png")
 
 BENCH_NOTE = ("Changes are B − A against the baseline A (relative to |A|). Lower is better for "
-              "ATE, t_rel, r_rel, map RMSE, the vs-smoother ATE and map, and runtime; for NEES "
+              "ATE, t_rel, r_rel, RPE, map RMSE, the vs-smoother ATE and map, and runtime; for NEES "
               "the value closer to its two-sided 95 % chi-square band (shown beside it) is "
               "better. \"same\": within 0.1 %. "
               f"{ABSENT}: not in that folder; {NO_VALUE}: no value.")

@@ -339,38 +339,29 @@ def _id_column(path: Path, key: str, a: np.ndarray, what: str) -> np.ndarray:
 def _n_tracks(raw: dict[str, np.ndarray], path: Path, track: np.ndarray, limit: int) -> int:
     """The number of track ids: ``n_tracks`` where given (an integer above every id), the largest
     id + 1 otherwise; refused where the per-track arrays would pass ``limit`` bytes."""
-    top = int(track.max()) + 1 if track.size else 0  # track.max() fits: checked below first
+    top, where = 0, f"{path}: key 'obs_track'"
     if track.size:
         r = int(np.argmax(track))
-        biggest = track[r].item()
-        if (biggest + 1) * BYTES_PER_TRACK > limit:
-            raise InputError(
-                f"{path}: key 'obs_track' row {r}: track id {biggest!r} means {biggest + 1} "
-                f"track ids, whose per-track arrays ((n_tracks, 3, 3) float64) would take "
-                f"{(biggest + 1) * BYTES_PER_TRACK} bytes, more than the limit of {limit} bytes "
-                f"(set {MAX_ARRAY_BYTES_ENV} to allow more, or number the tracks from 0)")
-    if N_TRACKS_KEY not in raw:
-        return top
-    a = raw[N_TRACKS_KEY]
-    if a.dtype.kind not in "iuf" or a.size != 1:
-        raise InputError(f"{path}: key {N_TRACKS_KEY!r} has dtype {a.dtype} and shape "
-                         f"{a.shape}, expected an integer scalar (the number of track ids)")
-    value = a.reshape(()).item()
-    if isinstance(value, float) and not (np.isfinite(value) and value == int(value)):
-        raise InputError(f"{path}: key {N_TRACKS_KEY!r}: {value!r} is not an integer")
-    value = int(value)
-    if value < 0:
-        raise InputError(f"{path}: key {N_TRACKS_KEY!r}: {value} is negative (the number of "
-                         "track ids)")
-    if value < top:
-        raise InputError(f"{path}: key {N_TRACKS_KEY!r}: {value} track ids, but 'obs_track' "
-                         f"holds track id {top - 1} (row {int(np.argmax(track))})")
-    if value * BYTES_PER_TRACK > limit:
-        raise InputError(f"{path}: key {N_TRACKS_KEY!r}: {value} track ids, whose per-track "
-                         f"arrays ((n_tracks, 3, 3) float64) would take "
-                         f"{value * BYTES_PER_TRACK} bytes, more than the limit of {limit} "
-                         f"bytes (set {MAX_ARRAY_BYTES_ENV} to allow more)")
-    return value
+        top, where = int(track[r]) + 1, f"{where} row {r}: track id {track[r].item()!r} means"
+    if N_TRACKS_KEY in raw:
+        a = raw[N_TRACKS_KEY]
+        value = a.reshape(()).item() if a.dtype.kind in "iuf" and a.size == 1 else None
+        if not (isinstance(value, int) or (isinstance(value, float) and np.isfinite(value)
+                                           and value == int(value))):
+            raise InputError(f"{path}: key {N_TRACKS_KEY!r} (dtype {a.dtype}, shape {a.shape}"
+                             f"{'' if value is None else f', value {value!r}'}) is not an "
+                             "integer scalar (the number of track ids)")
+        if int(value) < 0:
+            raise InputError(f"{path}: key {N_TRACKS_KEY!r}: {int(value)} is negative")
+        if int(value) < top:
+            raise InputError(f"{path}: key {N_TRACKS_KEY!r}: {int(value)} track ids, but "
+                             f"'obs_track' holds track id {top - 1} (row {r})")
+        top, where = int(value), f"{path}: key {N_TRACKS_KEY!r}:"
+    if top * BYTES_PER_TRACK > limit:
+        raise InputError(f"{where} {top} track ids, whose per-track arrays ((n_tracks, 3, 3) "
+                         f"float64) would take {top * BYTES_PER_TRACK} bytes, more than the "
+                         f"limit of {limit} bytes (set {MAX_ARRAY_BYTES_ENV} to allow more)")
+    return top
 
 
 def _scan_features(feats: np.ndarray, path: Path) -> np.ndarray | None:

@@ -131,16 +131,23 @@ def load_sequence_with_report(
     path = Path(path)
     arrays, report = _read_validated(path)
     seq = sequence_from_arrays(arrays, name=path.stem, source=str(path))
-    if not seq.obs.is_stereo and not monocular:
-        raise InputError(
-            f"{path}: key 'obs_pixels' holds monocular tracks (two columns [u, v]); vislam's "
-            "estimators are stereo: monocular tracks need a raw-IMU estimator (issues 37-38). "
-            "`vislam inspect` reads the file")
+    if not monocular:
+        require_stereo(seq, path)
     if clean:
         from vislam.ekf.cleaning import clean_sequence
 
         seq, _ = clean_sequence(seq)
     return seq, report
+
+
+def require_stereo(seq: Sequence, path: str | os.PathLike) -> None:
+    """Refuse a drive of monocular tracks (read from ``path``): every estimator of today is
+    stereo."""
+    if not seq.obs.is_stereo:
+        raise InputError(
+            f"{path}: key 'obs_pixels' holds monocular tracks (two columns [u, v]); vislam's "
+            "estimators are stereo: monocular tracks need a raw-IMU estimator (issues 37-38). "
+            "`vislam inspect` reads the file")
 
 
 def read_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:

@@ -23,6 +23,17 @@ Poses are ``world_T_imu`` (T, 4, 4) in float64; every figure is vectorised over 
   ``inv(est_i^-1 est_j) @ (gt_i^-1 gt_j)`` (the devkit's order; the inverse has the same
   translation norm and rotation angle), its translation norm and rotation angle divided by the
   segment length, averaged over all segments of all lengths: percent and degrees per 100 m.
+* Drive-fitted RPE (:func:`drive_rpe`), so that every drive with ground truth has a relative
+  error, however short: KITTI's 100..800 m segments fit only drives longer than 100 m. The
+  segment lengths come from the drive's own true path (1 to 5 steps of a tenth of it, rounded
+  to one significant figure) and each frame starts a segment whose end is the frame closest to
+  the length along the true path, within 10 % (evo's all-pairs segments): the rule in full is
+  :mod:`eval.rpe_segments`. The error of a segment is evo's ``E = (Q_i^-1 Q_j)^-1 (P_i^-1
+  P_j)``: translation ``|t(E)|`` (m, and in percent of the segment's own true path length) and
+  rotation angle (deg, and deg per metre of that length). Per length and over the segments of
+  every length together: mean, median and RMSE; the drive's headline figures (the bench
+  table's "RPE (%)" and "RPE (°/m)") are the means over all segments of all lengths, as
+  KITTI's t_rel / r_rel are over its segments.
 * NEES of poses in the :class:`ekf.estimate.Estimate` convention: right perturbation,
   translation first, ``xi = se3_log(inv(est) @ gt)``, ``NEES = xi^T cov^-1 xi`` (6 dof);
   of points ``e = gt - est`` (3 dof).
@@ -30,13 +41,23 @@ Poses are ``world_T_imu`` (T, 4, 4) in float64; every figure is vectorised over 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from vislam.ekf.errors import InputError
 from vislam.ekf.geometry import se3_inv, se3_log, vee
+from vislam.eval.rpe_segments import (
+    RPE_END_TOLERANCE,
+    drive_segment_lengths,
+    length_segments,
+    lengths_text,
+    path_distances,
+)
 
 #: Segment lengths (m) of the KITTI odometry benchmark.
 KITTI_LENGTHS = (100, 200, 300, 400, 500, 600, 700, 800)
+
 
 #: The trajectory alignments before an aligned ATE (see the module docstring); "se3" is the
 #: default everywhere.
@@ -327,6 +348,66 @@ def kitti_drift(est_poses, gt_poses, lengths=KITTI_LENGTHS, step: int = 10) -> d
     )
 
 
+# --------------------------------------------------------------------------- drive-fitted RPE
+
+
+def _stats(x: np.ndarray) -> dict | None:
+    """mean, median and RMSE of ``x``; None for no values."""
+    if x.size == 0:
+        return None
+    return {"mean": float(np.mean(x)), "median": float(np.median(x)), "rmse": _rmse(x)}
+
+
+def drive_rpe(est_poses, gt_poses, lengths=None) -> dict:
+    """The drive-fitted relative pose error (module docstring) of ``est_poses`` against
+    ``gt_poses`` (same frames, (n, 4, 4) each). ``lengths`` (m): None for the drive's own
+    (:func:`eval.rpe_segments.drive_segment_lengths`).
+
+    Returns a JSON-ready dict: ``lengths_m`` (list), ``path_length_m`` (the true path),
+    ``frames``, ``n_segments``, ``trans_pct`` and ``rot_deg_per_m`` over the segments of every
+    length ({mean, median, rmse}, None without segments), ``per_length`` (per length in order:
+    ``length_m``, ``n_segments``, and {mean, median, rmse} of ``trans_m``, ``trans_pct``,
+    ``rot_deg``, ``rot_deg_per_m``, each None where the length has no segment), and ``note``:
+    None, or in words why there is no figure (too short, too few frames, no segment found), a
+    clause that reads after "No RPE: ".
+    """
+    est, gt = _pair(est_poses, gt_poses)
+    dist = path_distances(gt)
+    note = None
+    if lengths is None:
+        lengths, note = drive_segment_lengths(gt)
+    lengths = tuple(float(L) for L in lengths)
+    if any(not (math.isfinite(L) and L > 0) for L in lengths):
+        raise InputError(f"segment lengths must be positive metres, got {list(lengths)}")
+    out = {"lengths_m": list(lengths), "path_length_m": float(dist[-1]) if dist.size else 0.0,
+           "frames": int(gt.shape[0]), "n_segments": 0, "trans_pct": None,
+           "rot_deg_per_m": None, "per_length": [], "note": note}
+    t_all, r_all = [], []
+    for length in lengths:
+        i, j = length_segments(dist, length)
+        entry = {"length_m": length, "n_segments": int(i.size), "trans_m": None,
+                 "trans_pct": None, "rot_deg": None, "rot_deg_per_m": None}
+        if i.size:
+            E = relative_errors(est, gt, i, j)
+            along = dist[j] - dist[i]
+            t_m = np.linalg.norm(E[:, :3, 3], axis=1)
+            r_deg = np.degrees(rotation_angle(E[:, :3, :3]))
+            t_pct, r_per_m = 100.0 * t_m / along, r_deg / along
+            entry.update(trans_m=_stats(t_m), trans_pct=_stats(t_pct), rot_deg=_stats(r_deg),
+                         rot_deg_per_m=_stats(r_per_m))
+            t_all.append(t_pct)
+            r_all.append(r_per_m)
+        out["per_length"].append(entry)
+    if t_all:
+        t_cat, r_cat = np.concatenate(t_all), np.concatenate(r_all)
+        out.update(n_segments=int(t_cat.size), trans_pct=_stats(t_cat),
+                   rot_deg_per_m=_stats(r_cat))
+    elif lengths and note is None:
+        out["note"] = (f"no segment of {lengths_text(lengths)} has an end within "
+                       f"{100 * RPE_END_TOLERANCE:g} % of its length on this drive's ground truth")
+    return out
+
+
 # --------------------------------------------------------------------------- NEES
 
 
@@ -408,4 +489,8 @@ def trajectory_metrics(est, gt_poses, frames=None) -> dict:
     out["kitti_t_rel_pct"] = drift["t_rel_pct"]
     out["kitti_r_rel_deg_per_100m"] = drift["r_rel_deg_per_100m"]
     out["kitti_n_segments"] = drift["n_segments"]
+    fitted = drive_rpe(est_p, gt)
+    out["rpe_drive_trans_pct"] = (fitted["trans_pct"] or {}).get("mean")
+    out["rpe_drive_rot_deg_per_m"] = (fitted["rot_deg_per_m"] or {}).get("mean")
+    out["rpe_drive_n_segments"] = fitted["n_segments"]
     return out

@@ -1,6 +1,6 @@
 """The results in words: ``summary.md`` of `vislam bench` (per drive the model line, readings in
-a few sentences and the table of figures) and ``score.md`` of `vislam score`; report.html shows
-the same text (:mod:`eval.report`).
+a few sentences, the table of figures and the drive-fitted RPE per segment length) and
+``score.md`` of `vislam score`; report.html shows the same text (:mod:`eval.report`).
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import math
 from vislam.ekf.model import long_run_pixel_sigma
 from vislam.eval.consistency import POSE_NEES_BAND, reference_honesty
 from vislam.eval.metrics import ALIGN_DESCRIPTIONS
+from vislam.eval.rpe_segments import RPE_END_TOLERANCE, lengths_text
 
 
 def format_figure(x, digits=2) -> str:
@@ -25,12 +26,25 @@ def format_figure(x, digits=2) -> str:
     return str(x)
 
 
+def format_small(x) -> str:
+    """A table cell for figures that are often well below 1 (the RPE's °/m: 0.065, 0.0021):
+    two significant digits and at least two decimals (2.62, 0.10, 0.0021); "–" for no value,
+    and as :func:`format_figure` below 1e-4 or from 1e5 on."""
+    if x is None or not isinstance(x, float) or not math.isfinite(x) or x == 0:
+        return format_figure(x)
+    if not 1e-4 <= abs(x) < 1e5:
+        return format_figure(x)
+    return f"{x:.{max(2, 1 - math.floor(math.log10(abs(x))))}f}"
+
+
 #: The columns of a drive's table in summary.md: (header, key in the row or in its
-#: "vs_smoother" part, digits). A column with no value on any row of the drive is left out.
+#: "vs_smoother" part, digits: decimals, or a formatter such as :func:`format_small`). A
+#: column with no value on any row of the drive is left out.
 SUMMARY_COLUMNS = (
     ("time (s)", "runtime_s", 2), ("frames/s", "frames_per_s", 1), ("ATE (m)", "ate_m", 2),
     ("ATE al. (m)", "ate_aligned_m", 2), ("t_rel (%)", "rpe_trans_pct", 2),
-    ("r_rel (°/100m)", "rpe_rot_deg_per_100m", 2), ("NEES", "nees_pose_mean", 2),
+    ("r_rel (°/100m)", "rpe_rot_deg_per_100m", 2), ("RPE (%)", "rpe_drive_trans_pct", 2),
+    ("RPE (°/m)", "rpe_drive_rot_deg_per_m", format_small), ("NEES", "nees_pose_mean", 2),
     ("map RMSE (m)", "map_rmse_m", 2), ("lm NEES", "nees_landmark_mean", 2),
     ("vs sm. ATE al. (m)", "vs_smoother.ate_aligned_m", 2), ("vs sm. map (m)", "vs_smoother.map_rmse_m", 2),
     ("vs sm. NEES", "vs_smoother.nees_pose_mean", 2), ("vs sm. in 95%", "vs_smoother.inside_95_fraction", 2),
@@ -48,7 +62,9 @@ def summary_markdown(results: dict) -> str:
     """The results as Markdown: per sequence the model line, readings in words
     (:func:`readings`), and a table of the columns that have a value on some row."""
     lines = ["# vislam benchmark", ""]
-    lines.append(f"RPE: {results['rpe_definition']}.")
+    lines.append(f"t_rel, r_rel: {results['rpe_definition']}.")
+    if results.get("rpe_drive_definition"):
+        lines.append(f"RPE: {results['rpe_drive_definition']}.")
     align = _alignment_words(results)
     lines.append(f"ATE al.: the ATE after {align}.")
     lines.append("vs smoother: the estimator against the smoother's estimate on the same data "
@@ -71,7 +87,77 @@ def summary_markdown(results: dict) -> str:
         lines.append("|" + "|".join(["---"] * len(header)) + "|")
         lines += ["| " + " | ".join(cells).rstrip() + " |" for cells in rows]
         lines.append("")
+        per_length = rpe_length_table(s)
+        if per_length is not None:
+            caption, header, rows = per_length
+            lines += [caption, ""]
+            lines.append("| " + " | ".join(header) + " |")
+            lines.append("|" + "|".join(["---"] * len(header)) + "|")
+            lines += ["| " + " | ".join(cells).rstrip() + " |" for cells in rows]
+            lines.append("")
     return "\n".join(lines)
+
+
+def drive_rpe_of(s: dict) -> dict | None:
+    """The drive-fitted RPE detail (results.json's ``rpe_drive``) of the drive's first
+    estimator that has one: its lengths and note are the truth's, the same for every
+    estimator."""
+    return next((r["rpe_drive"] for r in s["estimators"]
+                 if not r["error"] and r.get("rpe_drive") is not None), None)
+
+
+def rpe_sentence(s: dict) -> str | None:
+    """Which segment lengths the drive's RPE used and why (or, in words, why it has none);
+    None for a drive without ground truth or without a scored estimator."""
+    fitted = drive_rpe_of(s)
+    if fitted is None:
+        return None
+    kitti = any(r.get("rpe_trans_pct") is not None for r in s["estimators"] if not r["error"])
+    path = fitted.get("path_length_m")
+    path_words = (" true path" if path is None
+                  else f" {format_figure(float(path), 1)} m true path")
+    if fitted.get("note"):
+        return f"No RPE: {fitted['note']}."
+    lengths = fitted.get("lengths_m") or []
+    sentence = (f"RPE over segments of {lengths_text(lengths)} (chosen from the drive's"
+                f"{path_words}; {fitted.get('n_segments', 0)} segments per estimator)")
+    empty = [float(e["length_m"]) for e in fitted.get("per_length") or []
+             if not e.get("n_segments")]
+    if empty:
+        sentence += (f"; no segment of {lengths_text(empty)} had an end within "
+                     f"{100 * RPE_END_TOLERANCE:g} % of its length")
+    if kitti:
+        sentence += "; KITTI's t_rel / r_rel over 100-800 m as well"
+    else:
+        sentence += "; KITTI's 100-800 m segments do not fit this drive"
+    return sentence + "."
+
+
+def rpe_length_table(s: dict) -> tuple[str, list[str], list[list[str]]] | None:
+    """The drive-fitted RPE per segment length: a caption, the header (a column per length,
+    with its number of segments) and per scored estimator the mean translation error (% of the
+    segment) / rotation error (°/m); None when the drive has no such figure."""
+    fitted = drive_rpe_of(s)
+    if fitted is None or not fitted.get("n_segments"):
+        return None
+    lengths = [e for e in fitted.get("per_length") or [] if e.get("n_segments")]
+    header = ["estimator"] + [f"{float(e['length_m']):g} m ({e['n_segments']})" for e in lengths]
+    rows = []
+    for r in s["estimators"]:
+        if r["error"] or r.get("rpe_drive") is None:
+            continue
+        by = {float(e["length_m"]): e for e in r["rpe_drive"].get("per_length") or []}
+        cells = [r["name"]]
+        for e in lengths:
+            mine = by.get(float(e["length_m"])) or {}
+            t = (mine.get("trans_pct") or {}).get("mean")
+            rot = (mine.get("rot_deg_per_m") or {}).get("mean")
+            cells.append(f"{format_figure(t, 2)} / {format_small(rot)}")
+        rows.append(cells)
+    caption = ("RPE per segment length (its number of segments in brackets): mean translation "
+               "error in % / mean rotation error in °/m of the segment's true path; results.json "
+               "holds the median and RMSE too, and the errors in m and deg.")
+    return caption, header, rows
 
 
 def _alignment_words(results: dict) -> str:
@@ -90,7 +176,9 @@ def sequence_table(s: dict) -> tuple[list[str], list[list[str]]]:
         if r["error"]:
             rows.append([r["name"], f"failed: {r['error']}"] + [""] * max(len(columns) - 1, 0))
         else:
-            rows.append([r["name"]] + [format_figure(cell(r, key), digits) for _, key, digits in columns])
+            rows.append([r["name"]] + [digits(cell(r, key)) if callable(digits)
+                                       else format_figure(cell(r, key), digits)
+                                       for _, key, digits in columns])
     return ["estimator"] + [c[0] for c in columns], rows
 
 
@@ -111,7 +199,11 @@ def readings(s: dict) -> list[str]:
     scored = [r for r in ok if r.get("ate_aligned_m") is not None]
     if scored:
         best = min(scored, key=lambda r: r["ate_aligned_m"])
-        drift = "" if best.get("rpe_trans_pct") is None else f", t_rel {format_figure(best['rpe_trans_pct'])} %"
+        drift = ""
+        if best.get("rpe_trans_pct") is not None:
+            drift = f", t_rel {format_figure(best['rpe_trans_pct'])} %"
+        elif best.get("rpe_drive_trans_pct") is not None:
+            drift = f", RPE {format_figure(best['rpe_drive_trans_pct'])} %"
         sentence = f"Most accurate: {best['name']} (aligned ATE {format_figure(best['ate_aligned_m'])} m{drift})"
         ekfs = [r for r in scored if r["name"].startswith("ekf-")]
         if ekfs and not best["name"].startswith("ekf-"):
@@ -124,6 +216,9 @@ def readings(s: dict) -> list[str]:
             e = min(near, key=lambda r: cell(r, "vs_smoother.ate_aligned_m"))
             out.append(f"No ground truth: the estimator closest to the smoother is {e['name']} "
                        f"(aligned ATE against it {format_figure(cell(e, 'vs_smoother.ate_aligned_m'))} m).")
+    said_rpe = rpe_sentence(s)
+    if said_rpe:
+        out.append(said_rpe)
     lo, hi = POSE_NEES_BAND
     for what, key in (("against ground truth", "nees_pose_mean"),
                       ("against the smoother", "vs_smoother.nees_pose_mean")):
@@ -234,7 +329,11 @@ def score_markdown(result: dict) -> str:
         lines.append(f"Reference: the batch smoother as vislam bench runs it "
                      f"({' then '.join(ref['estimators_run'])}); its own row is scored on the "
                      "same frames.")
+    from vislam.eval.bench_scores import RPE_DRIVE_DEFINITION
+
     body = summary_markdown({"rpe_definition": result["rpe_definition"],
+                             "rpe_drive_definition": result.get("rpe_drive_definition",
+                                                                RPE_DRIVE_DEFINITION),
                              "alignment": result["alignment"],
                              "sequences": [result["sequence"]]})
     body_lines = body.splitlines()

@@ -1,7 +1,8 @@
 """``report.html``: one self-contained page per results folder of `vislam bench`.
 
-The page holds what ``summary.md`` holds (per drive: the model line, the readings in words, the
-table) and every figure of the drive, embedded as a data URI so that the single file can be
+The page holds what ``summary.md`` holds (per drive: the model line, the readings in words, among
+them which segment lengths the RPE used, the table of figures and the RPE per segment length)
+and every figure of the drive, embedded as a data URI so that the single file can be
 mailed or archived. A small script marks ``<body data-images="loaded/total">`` once the page has
 loaded, so a headless browser can check that every image decoded (tests/test_report.py).
 """
@@ -12,7 +13,7 @@ import base64
 import html
 from pathlib import Path
 
-from vislam.eval.readings import model_line, readings, sequence_table
+from vislam.eval.readings import model_line, readings, rpe_length_table, sequence_table
 
 #: The order figures appear in on the page (others follow, by name).
 FIGURE_ORDER = ("trajectories.png", "error_over_distance.png", "nees.png", "vs_smoother.png", "map.png")
@@ -23,6 +24,7 @@ table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }
 th, td { border: 1px solid #bbb; padding: 0.25em 0.6em; text-align: right; }
 th:first-child, td:first-child { text-align: left; }
 th { background: #eee; }
+caption { caption-side: top; text-align: left; color: #444; padding-bottom: 0.3em; }
 figure { margin: 1.5em 0; }
 figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { color: #555; font-size: 0.9em; }
@@ -50,13 +52,23 @@ def _img(path: Path) -> str:
             f"<figcaption>{html.escape(path.name)}</figcaption></figure>")
 
 
+def _table(caption: str, header: list[str], rows: list[list[str]]) -> list[str]:
+    """A captioned table's lines."""
+    return (["<table>", f"<caption>{html.escape(caption)}</caption>",
+             "<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>"]
+            + ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>"
+               for row in rows] + ["</table>"])
+
+
 def report_html(results: dict, folder: Path) -> str:
     """The page for ``results`` (results.json's content) whose drive folders (with their PNG
     figures) are in ``folder``."""
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
              "<title>vislam benchmark</title>", f"<style>{_STYLE}</style>",
              f"<script>{_IMAGES_LOADED}</script></head><body>", "<h1>vislam benchmark</h1>",
-             f"<p>RPE: {html.escape(results['rpe_definition'])}.</p>"]
+             f"<p>t_rel, r_rel: {html.escape(results['rpe_definition'])}.</p>"]
+    if results.get("rpe_drive_definition"):
+        parts.append(f"<p>RPE: {html.escape(results['rpe_drive_definition'])}.</p>")
     if results.get("alignment_definition"):
         parts.append(f"<p>{html.escape(results['alignment_definition'])}.</p>")
     for s in results["sequences"]:
@@ -72,6 +84,9 @@ def report_html(results: dict, folder: Path) -> str:
         parts.append("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>")
         parts += ["<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows]
         parts.append("</table>")
+        per_length = rpe_length_table(s)
+        if per_length is not None:
+            parts += _table(*per_length)
         parts += [_img(p) for p in _figures(folder / s["name"])]
     parts.append("</body></html>")
     return "\n".join(parts)

@@ -9,6 +9,8 @@
     for drive in res.bench.drives.values():
         for est in drive.estimators.values():
             print(drive.name, est.name, est.ate_aligned_m, est.nees_pose_mean)
+            if est.rpe_drive is not None:  # the drive-fitted RPE: mean % over its segments
+                print(est.rpe_drive_trans_pct, est.rpe_drive.lengths_text, est.rpe_drive.note)
     joint = res.bench.drives["sim-seed0"].estimators["ekf-joint"].load_estimate()
 
 A folder may hold either kind or both (``Results.bench``, ``Results.nees``; None where absent).
@@ -27,6 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from vislam.ekf.errors import InputError
+# DriveRpe, ErrorStats and SegmentLengthRpe are the types of EstimatorResult.rpe_drive, read here
+from vislam.eval.results_rpe import DriveRpe, ErrorStats, SegmentLengthRpe, drive_rpe_of  # noqa: F401
 from vislam.eval.json_reading import (
     count,
     named_objects,
@@ -40,12 +44,14 @@ from vislam.eval.json_reading import (
 RESULTS_FILE = "results.json"
 NEES_FILE = "nees.json"
 SETTINGS_FILE = "settings.json"
-#: The results.json schema read here (what eval/benchmark.py writes as its ``SCHEMA``).
-BENCH_SCHEMA = 1
+#: The results.json schema written today (eval.bench_scores.SCHEMA) ...
+BENCH_SCHEMA = 2
+#: ... and every schema read: 1 lacks the drive-fitted RPE (its figures read as None).
+BENCH_SCHEMAS = (1, 2)
 #: The figures of one estimator on one drive of a bench folder (results.json's keys).
 BENCH_FIGURE_KEYS = ("runtime_s", "frames_per_s", "ate_m", "ate_aligned_m", "rpe_trans_pct",
-                     "rpe_rot_deg_per_100m", "nees_pose_mean", "map_rmse_m",
-                     "nees_landmark_mean")
+                     "rpe_rot_deg_per_100m", "rpe_drive_trans_pct", "rpe_drive_rot_deg_per_m",
+                     "nees_pose_mean", "map_rmse_m", "nees_landmark_mean")
 #: The figures against the reference smoother (results.json's ``vs_smoother``).
 VS_SMOOTHER_KEYS = ("ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean",
                     "inside_95_fraction")
@@ -89,6 +95,12 @@ class EstimatorResult:
     map_rmse_m: float | None
     nees_landmark_mean: float | None
     vs_smoother: VersusSmoother
+    #: the drive-fitted RPE (mean over its segments; None: no value, or a schema 1 folder)
+    rpe_drive_trans_pct: float | None = None
+    rpe_drive_rot_deg_per_m: float | None = None
+    #: its detail: the lengths used, per length the statistics, or why there is none (None:
+    #: no ground truth, the estimator failed, or a schema 1 folder)
+    rpe_drive: DriveRpe | None = None
     #: the whole estimate (``ekf.estimate.Estimate.save_npz``)
     estimate_path: Path | None = None
     #: the trajectory in TUM format
@@ -205,6 +217,8 @@ class BenchResults:
     drives: dict[str, DriveResult]
     wall_s: float | None
     settings: dict | None
+    #: what the drive-fitted RPE means (None in a schema 1 folder)
+    rpe_drive_definition: str | None = None
 
     @property
     def filter(self) -> dict | None:
@@ -343,6 +357,7 @@ def _estimator(r: dict, w: str, folder: Path) -> EstimatorResult:
     versus = VersusSmoother(**{k: number(vs.get(k), f"{w}.vs_smoother.{k}")
                                for k in VS_SMOOTHER_KEYS})
     figures = {k: number(r.get(k), f"{w}.{k}") for k in BENCH_FIGURE_KEYS}
+    figures["rpe_drive"] = drive_rpe_of(r.get("rpe_drive"), f"{w}.rpe_drive")
     stem = file_stem(r["name"])
     estimate = next((f for f in (folder / f"{stem}.estimate.npz", folder / f"{stem}.npz")
                      if f.is_file()), None)
@@ -359,9 +374,9 @@ def bench_results(data, path: Path, settings: dict | None = None) -> BenchResult
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a JSON object, got {type(data).__name__}")
     schema = data.get("schema")
-    if schema != BENCH_SCHEMA:
+    if isinstance(schema, bool) or schema not in BENCH_SCHEMAS:
         raise InputError(f"{path}: key 'schema' is {short(schema)}; vislam reads schema "
-                         f"{BENCH_SCHEMA} (results.json of vislam bench)")
+                         f"{' or '.join(map(str, BENCH_SCHEMAS))} (results.json of vislam bench)")
     seqs = require(data, "sequences", list, str(path))
     entries = {}
     if settings is not None and isinstance(settings.get("sequences"), list):
@@ -391,6 +406,8 @@ def bench_results(data, path: Path, settings: dict | None = None) -> BenchResult
         alignment_definition=text_or_none(data.get("alignment_definition"),
                                    f"{path}: alignment_definition"),
         rpe_definition=text_or_none(data.get("rpe_definition"), f"{path}: rpe_definition"),
+        rpe_drive_definition=text_or_none(data.get("rpe_drive_definition"),
+                                          f"{path}: rpe_drive_definition"),
         estimators=names, drives=drives, wall_s=number(data.get("wall_s"), f"{path}: wall_s"),
         settings=settings)
 

@@ -41,12 +41,18 @@ def test_bench_on_a_short_simulation_writes_everything(tmp_path, capsys):
         assert r["error"] is None
         assert r["runtime_s"] > 0 and r["ate_m"] is not None and r["nees_pose_mean"] is not None
         assert r["rpe_trans_pct"] is None  # 70 frames: shorter than every KITTI segment
+        assert r["rpe_drive_trans_pct"] is not None and r["rpe_drive"]["note"] is None
+        assert r["rpe_drive"]["lengths_m"] == rows["smoother"]["rpe_drive"]["lengths_m"]
     assert rows["ekf-joint"]["map_rmse_m"] is not None
     assert rows["ekf-joint"]["vs_smoother"]["map_rmse_m"] is not None
     assert rows["ekf-joint"]["vs_smoother"]["inside_95_fraction"] is not None
     assert all(v is None for v in rows["smoother"]["vs_smoother"].values())
     assert rows["dead-reckoning"]["map_rmse_m"] is None  # no landmarks: null, not absent
-    assert (out / "summary.md").read_text().count("| ekf-joint |") == 1
+    summary = (out / "summary.md").read_text()
+    # one row in the table of figures, one in the RPE per segment length
+    assert summary.count("| ekf-joint |") == 2 and "| RPE (%) | RPE (°/m) |" in summary
+    lengths = rows["smoother"]["rpe_drive"]["lengths_m"]
+    assert f"RPE over segments of {readings.lengths_text(lengths)}" in summary
     settings = json.loads((out / "settings.json").read_text())
     assert settings["estimators"] == FAST.split(",") and "filter" in settings
     folder = out / seq["name"]

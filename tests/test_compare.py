@@ -375,3 +375,45 @@ def test_real_bench_before_and_after_a_settings_change(tmp_path, capsys):
     assert r"\bottomrule" in (out / "compare.tex").read_text()
     png = (out / "compare.png").read_bytes()
     assert png.startswith(PNG_MAGIC) and len(png) > 20000
+
+
+# --- the drive-fitted RPE ----------------------------------------------------------------------
+
+
+def _fitted(lengths: list[float], trans_pct: float) -> dict:
+    stats = {"mean": trans_pct, "median": trans_pct, "rmse": trans_pct}
+    return {"lengths_m": lengths, "path_length_m": 10 * lengths[0], "frames": 60,
+            "n_segments": 50, "trans_pct": stats, "rot_deg_per_m": None,
+            "per_length": [{"length_m": L, "n_segments": 10, "trans_m": None, "trans_pct": stats,
+                            "rot_deg": None, "rot_deg_per_m": None} for L in lengths],
+            "note": None}
+
+
+def _rpe_folder(folder: Path, lengths: list[float], trans_pct: float) -> Path:
+    data = _results(_seq("s", _est("ekf-joint", ate_m=1.0, rpe_drive_trans_pct=trans_pct,
+                                   rpe_drive_rot_deg_per_m=0.02,
+                                   rpe_drive=_fitted(lengths, trans_pct))))
+    data["schema"] = 2
+    return _write(folder, "results.json", data)
+
+
+def test_drive_fitted_rpe_is_compared_and_its_lengths_said(tmp_path, capsys):
+    a = _rpe_folder(tmp_path / "a", [4.0, 8.0, 12.0], 2.0)
+    b = _rpe_folder(tmp_path / "b", [4.0, 8.0, 12.0], 1.0)
+    rc, printed, err = _run([a, b, "--out", tmp_path / "out"], capsys)
+    assert rc == 0, err
+    assert _row(printed, "ekf-joint", "RPE (%)")[2:] == ["2.000", "1.000", "-1.000 (-50.0 %)",
+                                                         "better"]
+    assert _row(printed, "ekf-joint", "RPE (°/m)")[5] == "same"
+    assert "RPE over segments of 4, 8 and 12 m" in printed
+    # Folders whose drives gave other lengths: said, since the rows compare other segments.
+    c = _rpe_folder(tmp_path / "c", [5.0, 10.0], 1.0)
+    rc, printed, err = _run([a, c, "--out", tmp_path / "out2"], capsys)
+    assert rc == 0, err
+    assert ("RPE over different segment lengths (A: 4, 8 and 12 m; B: 5 and 10 m)" in printed)
+    # A schema 1 folder (written before the drive-fitted RPE) has no value there.
+    old = _write(tmp_path / "old", "results.json", _results(_seq("s", _est("ekf-joint",
+                                                                           ate_m=1.0))))
+    rc, printed, err = _run([old, b, "--out", tmp_path / "out3"], capsys)
+    assert rc == 0, err
+    assert _row(printed, "ekf-joint", "RPE (%)")[2:4] == ["n/a", "1.000"]

@@ -12,6 +12,7 @@ from vislam.ekf.geometry import se3_exp, se3_log, so3_exp
 from vislam.eval.metrics import (
     align_trajectory,
     ate_rmse,
+    drive_rpe,
     interval_errors,
     kitti_drift,
     nees,
@@ -21,6 +22,13 @@ from vislam.eval.metrics import (
     trajectory_metrics,
     turn_scale_error,
     umeyama,
+)
+
+from vislam.eval.rpe_segments import (
+    drive_segment_lengths,
+    length_segments,
+    path_distances,
+    readable_length,
 )
 
 import evo.core.metrics as evo_metrics  # noqa: E402  (evo: the test extra)
@@ -330,3 +338,165 @@ def test_nees_nan_where_no_covariance_and_points():
     assert points[0] == pytest.approx(e @ np.linalg.solve(cov[0], e))
     with pytest.raises(InputError, match="covariances"):
         nees(gt - est, cov[:5])
+
+
+# --------------------------------------------------------------------------- drive-fitted RPE
+
+
+def _straight(path_m: float, n: int) -> np.ndarray:
+    """A straight drive along x of ``path_m`` metres over ``n`` evenly spaced poses."""
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3] = np.linspace(0.0, path_m, n)
+    return gt
+
+
+@pytest.mark.parametrize("x, rounded", [(4.4, 4.0), (13.7, 10.0), (250.0, 300.0), (0.072, 0.07),
+                                        (9.6, 10.0), (1.5, 2.0), (1.49, 1.0), (70.3, 70.0)])
+def test_readable_length_keeps_one_significant_figure(x, rounded):
+    assert readable_length(x) == rounded
+
+
+@pytest.mark.parametrize("path_m, n, lengths", [
+    (44.0, 441, (4.0, 8.0, 12.0, 16.0, 20.0)),            # the 44 m drive of the issue
+    (163.1, 200, (20.0, 40.0, 60.0, 80.0, 100.0)),        # `vislam simulate --frames 200`
+    (700.0, 1101, (70.0, 140.0, 210.0, 280.0, 350.0)),    # a KITTI-like drive
+    (4541.0, 4541, (500.0, 1000.0, 1500.0, 2000.0, 2500.0)),
+    (7.2, 120, (0.7, 1.4, 2.1, 2.8, 3.5)),                # a drone in a room
+    (0.72, 100, (0.07, 0.14, 0.21, 0.28, 0.35)),
+    (11.6, 14, (5.0,)),                                   # 1..4 m span fewer than 5 frame steps
+])
+def test_segment_lengths_follow_the_drives_own_path(path_m, n, lengths):
+    got, note = drive_segment_lengths(_straight(path_m, n))
+    assert got == lengths and note is None
+    # The rule in words: a tenth of the path to one significant figure, 1..5 times, each
+    # spanning at least 5 frame steps on average; every kept length fits the drive.
+    step = readable_length(path_m / 10)
+    assert all(L == pytest.approx(k * step) for L, k in zip(reversed(got), range(5, 0, -1)))
+    assert all(5 * path_m / (n - 1) <= L < path_m for L in got)
+
+
+def test_too_short_or_still_drives_have_no_lengths_and_say_why():
+    lengths, note = drive_segment_lengths(_straight(4.5, 5))
+    assert lengths == () and note.startswith("the drive is too short: 5 frames")
+    assert "0.5, 1, 1.5, 2 and 2.5 m" in note and "16 frames" in note
+    assert drive_segment_lengths(_straight(3.0, 1))[1] == "only 1 frame with ground truth"
+    assert "does not move" in drive_segment_lengths(np.tile(np.eye(4), (50, 1, 1)))[1]
+    # From 16 frames on a drive always keeps a length, whatever its path rounds to.
+    for n in (16, 17, 30):
+        for path_m in np.linspace(0.5, 200.0, 400):
+            assert drive_segment_lengths(_straight(path_m, n))[0], (n, path_m)
+    d = drive_rpe(_straight(4.5, 5), _straight(4.5, 5))
+    assert d["lengths_m"] == [] and d["trans_pct"] is None and d["n_segments"] == 0
+    assert d["note"].startswith("the drive is too short")
+
+
+def test_length_segments_pick_the_closest_end_within_tolerance():
+    dist = np.array([0.0, 1.0, 2.0, 2.0, 3.5, 4.0, 5.2, 9.0])
+    i, j = length_segments(dist, 2.0)
+    # 0 -> 2 (exactly 2 m); 1 -> 3? 3.0 is wanted: 2.0 and 3.5 both miss by more than 0.2 m;
+    # 2 and 3 -> 5 (4.0); 4 -> 6 (5.2, 0.3 m short: rejected); 5 -> 6 misses by 0.8.
+    assert list(zip(i, j)) == [(0, 2), (2, 5), (3, 5)]
+    i, j = length_segments(dist, 2.0, tolerance=0.5)
+    assert list(zip(i, j)) == [(0, 2), (1, 4), (2, 5), (3, 5), (4, 6), (5, 6)]
+    assert list(length_segments(dist, 100.0)[0]) == []
+
+
+def test_drive_rpe_of_a_constant_scale_error_is_that_error_in_percent():
+    # The estimate travels 2 % too far on a straight 44 m drive: 2 % on every segment of every
+    # length (of each segment's own true path), and no rotation error.
+    gt = _straight(44.0, 441)
+    est = gt.copy()
+    est[:, 0, 3] *= 1.02
+    d = drive_rpe(est, gt)
+    assert d["lengths_m"] == [4.0, 8.0, 12.0, 16.0, 20.0] and d["note"] is None
+    assert d["path_length_m"] == pytest.approx(44.0) and d["frames"] == 441
+    for stat in ("mean", "median", "rmse"):
+        assert d["trans_pct"][stat] == pytest.approx(2.0, rel=1e-9)
+        assert d["rot_deg_per_m"][stat] == pytest.approx(0.0, abs=1e-9)
+    for e in d["per_length"]:
+        L = e["length_m"]
+        # Frames 0.1 m apart: every start with L m still ahead (ends exact), and the starts
+        # with 0.9 L to L m ahead (the last frame, within the 10 % tolerance).
+        assert 441 - 10 * L <= e["n_segments"] <= 441 - 9 * L + 1
+        assert e["trans_m"]["median"] == pytest.approx(0.02 * L, rel=1e-9)  # most are L long
+        assert e["trans_pct"]["rmse"] == pytest.approx(2.0, rel=1e-9)
+    assert d["n_segments"] == sum(e["n_segments"] for e in d["per_length"])
+
+
+def test_drive_rpe_of_a_pure_rotation_drift_is_that_rate_in_deg_per_m():
+    # The heading drifts 0.5 deg per metre travelled, positions exact: 0.5 deg/m on every
+    # segment, 0.5 L deg over a segment of L m; the translation error comes from reading the
+    # true displacement in the turned frame (by hand below).
+    n, rate = 441, 0.5
+    gt = _straight(44.0, n)
+    dist = path_distances(gt)
+    est = gt.copy()
+    est[:, :3, :3] = so3_exp(np.outer(np.radians(rate * dist), [0, 0, 1.0]))
+    d = drive_rpe(est, gt)
+    for e in d["per_length"]:
+        L = e["length_m"]
+        assert e["rot_deg"]["median"] == pytest.approx(rate * L, rel=1e-6)  # most are L long
+        assert e["rot_deg_per_m"]["median"] == pytest.approx(rate, rel=1e-6)
+    assert d["rot_deg_per_m"]["mean"] == pytest.approx(rate, rel=1e-6)
+    # By hand: a segment of l m from a pose of heading a (the truth's: none) has the true
+    # motion [l, 0, 0] and the estimated Rz(-a) [l, 0, 0], so E's translation is
+    # Rz(-a) [l, 0, 0] - [l, 0, 0], of norm 2 l sin(a / 2): 200 sin(a / 2) % of l.
+    e = d["per_length"][0]
+    i, _ = length_segments(dist, e["length_m"])
+    by_hand = 200.0 * np.sin(np.radians(rate * dist[i]) / 2)
+    assert e["trans_pct"]["mean"] == pytest.approx(np.mean(by_hand), rel=1e-9)
+    assert e["trans_pct"]["rmse"] == pytest.approx(np.sqrt(np.mean(by_hand**2)), rel=1e-9)
+
+
+def test_drive_rpe_matches_evo_all_pairs_in_metres():
+    rng = np.random.default_rng(5)
+    gt = _random_drive(rng, n=400)  # about 320 m
+    est = _perturbed(rng, gt, sigma_t=0.5, sigma_r=0.02)
+    d = drive_rpe(est, gt)
+    for e in d["per_length"]:
+        metric = evo_metrics.RPE(evo_metrics.PoseRelation.translation_part, delta=e["length_m"],
+                                 delta_unit=evo_metrics.Unit.meters, rel_delta_tol=0.1,
+                                 all_pairs=True, pairs_from_reference=True)
+        metric.process_data((_evo(gt), _evo(est)))
+        assert len(metric.error) == e["n_segments"]
+        assert e["trans_m"]["rmse"] == pytest.approx(metric.get_statistic(
+            evo_metrics.StatisticsType.rmse), rel=1e-9)
+        assert e["trans_m"]["median"] == pytest.approx(metric.get_statistic(
+            evo_metrics.StatisticsType.median), rel=1e-9)
+
+
+def test_drive_rpe_is_in_trajectory_metrics_and_kitti_drift_is_unchanged(pair):
+    est, gt, _ = pair
+    m = trajectory_metrics(est, gt)
+    d = drive_rpe(est, gt)
+    assert m["rpe_drive_trans_pct"] == d["trans_pct"]["mean"]
+    assert m["rpe_drive_rot_deg_per_m"] == d["rot_deg_per_m"]["mean"]
+    assert m["rpe_drive_n_segments"] == d["n_segments"] > 0
+    assert m["kitti_t_rel_pct"] == kitti_drift(est, gt)["t_rel_pct"]
+
+
+def test_drive_rpe_on_a_room_drive_with_stops_and_loops():
+    # A platform circling a 2 m radius in a room for 1,900 frames (16 Hz, 0.5 m/s), standing
+    # still for 2 s every 10 s: the path length, not the displacement, picks the lengths;
+    # starts inside a stop share their end, and every kept segment is within 10 % of length.
+    n, dt, speed = 1900, 1 / 16, 0.5
+    moving = (np.arange(n - 1) * dt) % 10.0 < 8.0
+    s = np.concatenate([[0.0], np.cumsum(speed * dt * moving)])
+    angle = s / 2.0
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3], gt[:, 1, 3] = 2.0 * np.cos(angle), 2.0 * np.sin(angle)
+    gt[:, :3, :3] = so3_exp(np.outer(angle, [0, 0, 1.0]))
+    dist = path_distances(gt)
+    lengths, note = drive_segment_lengths(gt)
+    assert note is None and lengths == (5.0, 10.0, 15.0, 20.0, 25.0)  # 47.5 m of path
+    for L in lengths:
+        i, j = length_segments(dist, L)
+        assert i.size > 0.8 * (n - L / (speed * dt))
+        assert np.all(np.abs(dist[j] - dist[i] - L) <= 0.1 * L + 1e-12) and np.all(j > i)
+    # A gyro scale error of 1 % (every turn 1 % too large): about 0.01 rad per rad turned,
+    # i.e. 0.01 * (180 / pi) / 2 deg per metre on a 2 m radius (to the 1e-5 by which the
+    # path between frames, chords of the circle, is shorter than its arc).
+    est = gt.copy()
+    est[:, :3, :3] = so3_exp(np.outer(1.01 * angle, [0, 0, 1.0]))
+    d = drive_rpe(est, gt)
+    assert d["rot_deg_per_m"]["median"] == pytest.approx(0.01 * np.degrees(1.0) / 2.0, rel=1e-4)

@@ -1,7 +1,9 @@
 """Property-based tests of the loader and the ground-truth reader (issue 11).
 
-Files are generated from a small simulated drive (:mod:`eval.simulate`) and then damaged:
+Files are generated from a small simulated drive (:mod:`eval.simulate`), in the dense and in
+the sparse observation layout, and then damaged:
 keys dropped, added, or given other shapes, dtypes and values; NaN/inf; partial observations;
+frame and track ids out of range, negative, fractional or duplicated;
 both editions' keys; hostile .npy headers; zip members lying about their size; flipped,
 inserted or cut bytes. Ground-truth files get random text and bytes. The property: the reader
 returns a valid object or raises :class:`~ekf.errors.InputError` with a one-line message naming
@@ -33,7 +35,8 @@ from vislam.ekf.sequence import Calibration, Sequence
 from vislam.eval.groundtruth import GroundTruth, find_ground_truth, load_ground_truth
 from vislam.eval.loader import load_sequence_with_report, read_calibration
 
-#: Examples per property in CI (1,200 in all: about 5 s, well under 20 s on two cores).
+#: Examples per property in CI (1,600 in all; 1,200 of them took about 5 s on two idle cores,
+#: and a sparse example costs what a dense one does).
 EXAMPLES = int(os.environ.get("VISLAM_PROPERTY_EXAMPLES", "0")) or None
 #: No reader may allocate more than this for these files of a few kB (tracemalloc peak).
 MAX_PEAK_BYTES = 32 * 2**20
@@ -45,16 +48,20 @@ def examples(ci: int) -> int:
     return EXAMPLES or ci
 
 
-@lru_cache(maxsize=1)
-def base_arrays() -> dict[str, np.ndarray]:
-    """A small valid drive in edition-1 layout (8 frames, a few dozen tracks)."""
+@lru_cache(maxsize=2)
+def base_arrays(layout: str = "dense") -> dict[str, np.ndarray]:
+    """A small valid drive in edition-1 layout (8 frames, a few dozen tracks), its observations
+    dense or sparse."""
+    from vislam.eval.loader import sparse_arrays
     from vislam.eval.simulate import SimConfig, simulate
 
     seq = simulate(SimConfig(n_frames=8, seed=5, landmark_density=0.6)).sequence
     cal = seq.calibration
+    observations = ({"features": seq.obs.to_dense(seq.n_tracks)} if layout == "dense"
+                    else sparse_arrays(seq.obs, seq.n_tracks))
     return {
         "time_stamps": seq.timestamps[None, :],
-        "features": seq.obs.to_dense(seq.n_tracks),
+        **observations,
         "linear_velocity": seq.linear_velocity.T.copy(),
         "rotational_velocity": seq.angular_velocity.T.copy(),
         "K": cal.K.copy(),
@@ -69,6 +76,11 @@ DTYPES = ("<f8", ">f8", "<f4", "<f2", "<i8", ">i4", "<u1", "<u8", "?", "<c16", "
           "O", "<M8[s]", "<m8[s]", "V8", np.dtype([("a", "<f8")]), np.dtype(("<f8", (2,))),
           np.longdouble)
 SPECIAL = (np.nan, np.inf, -np.inf, -1.0, -5.0, 0.0, 1e308, -1e308, 1e-320, 2.0**63, -0.0)
+#: The sparse layout's keys, mutated as KEYS[:7] are in a dense file.
+SPARSE_KEYS = ("time_stamps", "obs_frame", "obs_track", "obs_pixels", "n_tracks",
+               "linear_velocity", "rotational_velocity", "K", "b", "cam_T_imu")
+#: Values put into a sparse file's frame and track columns.
+IDS = (-1, 0, 7, 8, 9, 10**6, 2**40, 2**63 - 1, 1.5, np.nan, -0.5)
 
 
 # --------------------------------------------------------------------------- array mutations
@@ -86,16 +98,21 @@ def array_mutation(draw, arrays: dict) -> str:
 
 
 def _mutate(draw, arrays: dict) -> str:
+    sparse = "obs_frame" in arrays or "obs_pixels" in arrays
     kind = draw(st.sampled_from(["drop", "extra", "shape", "dtype", "special", "partial",
-                                 "edition", "both", "scalar", "empty", "transpose"]))
-    key = draw(st.sampled_from(KEYS[:7]))
+                                 "edition", "both", "scalar", "empty", "transpose"]
+                                + ["ids", "ids", "duplicate", "partial"] * sparse))
+    key = draw(st.sampled_from(SPARSE_KEYS if sparse else KEYS[:7]))
+    if kind in ("ids", "duplicate"):
+        return _mutate_ids(draw, arrays, kind)
     if key not in arrays:
         return "noop"
     a = arrays[key]
     if kind == "drop":
         arrays.pop(key)
     elif kind == "extra":
-        name = draw(st.sampled_from(["notes", "x", "features2", "imu_T_cam", "angular_velocity"]))
+        name = draw(st.sampled_from(["notes", "x", "features2", "imu_T_cam", "angular_velocity",
+                                     "features", "obs_frame", "n_tracks"]))
         arrays[name] = draw(small_arrays())
     elif kind == "shape":
         arrays[key] = draw(small_arrays())
@@ -121,6 +138,15 @@ def _mutate(draw, arrays: dict) -> str:
                 if f.shape[1] and f.shape[2]:
                     f[r, j, t] = draw(st.sampled_from([-1.0, -1.0, -5.0, -0.25, 1e9]))
         arrays["features"] = f
+    elif kind == "partial" and "obs_pixels" in arrays and arrays["obs_pixels"].ndim == 2:
+        f = arrays["obs_pixels"].astype(float)
+        if f.size:
+            for _ in range(draw(st.integers(1, 4))):
+                f[draw(st.integers(0, f.shape[0] - 1)), draw(st.integers(0, f.shape[1] - 1))] = \
+                    draw(st.sampled_from([-1.0, -1.0, -5.0, -0.25, 1e9]))
+            if draw(st.booleans()):  # a whole row -1: no observation
+                f[draw(st.integers(0, f.shape[0] - 1))] = -1.0
+        arrays["obs_pixels"] = f
     elif kind in ("edition", "both"):
         for one, two in (("rotational_velocity", "angular_velocity"),
                          ("cam_T_imu", "imu_T_cam")):
@@ -143,6 +169,25 @@ def _mutate(draw, arrays: dict) -> str:
     elif kind == "transpose" and a.ndim >= 2:
         arrays[key] = np.asfortranarray(a.T)
     return f"{kind} {key}"
+
+
+def _mutate_ids(draw, arrays: dict, kind: str) -> str:
+    """A sparse file's frame or track ids set to ``IDS`` values, or a row duplicated."""
+    key = draw(st.sampled_from(["obs_frame", "obs_track"]))
+    if key not in arrays or arrays[key].ndim != 1 or not arrays[key].size:
+        return "noop"
+    a = arrays[key]
+    if kind == "duplicate":
+        i = draw(st.integers(0, a.size - 1))
+        for k in ("obs_frame", "obs_track", "obs_pixels"):
+            if k in arrays and arrays[k].ndim >= 1 and arrays[k].shape[0] > i:
+                arrays[k] = np.concatenate([arrays[k], arrays[k][i:i + 1]])
+        return f"duplicate row {i}"
+    value = draw(st.sampled_from(IDS))
+    a = a.astype(float) if isinstance(value, float) or a.dtype.kind == "f" else a.copy()
+    a[draw(st.integers(0, a.size - 1))] = value
+    arrays[key] = a
+    return f"ids {key} {value!r}"
 
 
 @st.composite
@@ -201,10 +246,9 @@ def npy(a: np.ndarray) -> bytes:
 
 
 @st.composite
-def npz_file(draw) -> tuple[bytes, list[str]]:
+def npz_file(draw, layout: str = "dense") -> tuple[bytes, list[str]]:
     """The bytes of a (damaged) .npz file and what was done to it."""
-    arrays = dict(base_arrays())
-    arrays["features"] = arrays["features"].copy()
+    arrays = {k: v.copy() for k, v in base_arrays(layout).items()}
     labels = [draw(array_mutation(arrays)) for _ in range(draw(st.integers(0, 3)))]
     members = []
     for key, value in arrays.items():
@@ -299,10 +343,11 @@ def check_sequence(seq: Sequence) -> None:
     check_calibration(seq.calibration)
 
 
-def check_calibration(cal: Calibration) -> None:
+def check_calibration(cal: Calibration, monocular: bool = False) -> None:
     assert cal.K.shape == (3, 3) and np.all(np.isfinite(cal.K))
     assert cal.K[0, 0] > 0 and cal.K[1, 1] > 0
-    assert np.isfinite(cal.baseline) and cal.baseline > 0
+    assert (monocular and np.isnan(cal.baseline)) or (np.isfinite(cal.baseline)
+                                                      and cal.baseline > 0)
     assert cal.cam_T_imu.shape == (4, 4) and np.all(np.isfinite(cal.cam_T_imu))
 
 
@@ -326,6 +371,32 @@ def test_load_sequence_returns_a_valid_drive_or_input_error(tmp_path, case):
             check_error(exc, path)
         else:
             check_calibration(cal)
+            assert n >= 1
+
+
+@settings(max_examples=examples(400))
+@given(npz_file("sparse"))
+def test_sparse_file_loads_as_a_valid_drive_or_input_error(tmp_path, case):
+    data, labels = case
+    path = tmp_path / "drive.npz"
+    path.write_bytes(data)
+    with bounded():
+        try:
+            seq, report = load_sequence_with_report(path)
+        except InputError as exc:
+            check_error(exc, path)
+        else:
+            check_sequence(seq)
+            assert report.n_invalid >= 0
+            frame = seq.obs.frame_index  # sorted, one row per (frame, track)
+            key = frame * max(seq.n_tracks, 1) + seq.obs.track
+            assert np.all(np.diff(key) > 0)
+        try:
+            cal, n = read_calibration(path)
+        except InputError as exc:
+            check_error(exc, path)
+        else:
+            check_calibration(cal, monocular=True)
             assert n >= 1
 
 

@@ -59,6 +59,45 @@ def test_report_holds_readings_tables_and_every_figure(bench_folder):
     assert not re.search(r'src="(?!data:)', page), "a figure is linked, not embedded"
 
 
+def _words(page: str) -> str:
+    """The page without its embedded images and script: what a reader sees."""
+    return re.sub(r"<script>.*?</script>|<img [^>]*>", "", page, flags=re.S)
+
+
+def test_report_says_which_rpe_segments_were_used(bench_folder):
+    import json
+
+    page = (bench_folder / "report.html").read_text()
+    summary = (bench_folder / "summary.md").read_text()
+    (seq,) = json.loads((bench_folder / "results.json").read_text())["sequences"]
+    fitted = seq["estimators"][0]["rpe_drive"]
+    lengths = ", ".join(f"{L:g}" for L in fitted["lengths_m"][:-1])
+    said = f"RPE over segments of {lengths} and {fitted['lengths_m'][-1]:g} m"
+    assert said in page and said in summary
+    assert "<th>RPE (%)</th>" in page and "<th>RPE (°/m)</th>" in page
+    # the table per segment length: a column per length with its number of segments
+    first = fitted["per_length"][0]
+    assert f"<th>{first['length_m']:g} m ({first['n_segments']})</th>" in page
+    assert "<caption>RPE per segment length" in page
+    for text in (_words(page), summary):
+        assert not re.search(r"\bnan\b", text, flags=re.I)
+
+
+def test_a_drive_too_short_for_any_segment_says_so_in_words(tmp_path):
+    out = tmp_path / "tiny"
+    assert main(["bench", "--frames", "5", "-e", "dead-reckoning,ekf-joint", "-j", "1",
+                 "--model", "as-given", "--out", str(out), "--quiet"]) == 0
+    summary = (out / "summary.md").read_text()
+    page = (out / "report.html").read_text()
+    said = "No RPE: the drive is too short: 5 frames with ground truth"
+    assert said in summary and said in page
+    # no RPE column, no table per segment length, no NaN: the figure is absent, in words
+    assert "| RPE (%)" not in summary and "<th>RPE (%)</th>" not in page
+    assert "RPE per segment length" not in summary and "<caption>" not in page
+    for text in (_words(page), summary):
+        assert not re.search(r"\bnan\b", text, flags=re.I)
+
+
 @pytest.mark.regression
 def test_report_in_a_headless_browser(bench_folder, tmp_path):
     browser = _browser()

@@ -16,6 +16,8 @@ from vislam.eval.results import (
     BENCH_SCHEMA,
     BenchResults,
     DriveResult,
+    DriveRpe,
+    ErrorStats,
     EstimatorResult,
     NeesEstimatorResult,
     NeesResults,
@@ -24,10 +26,27 @@ from vislam.eval.results import (
 )
 
 
+def _stats(x: float) -> dict:
+    return {"mean": x, "median": 0.9 * x, "rmse": 1.1 * x}
+
+
+#: results.json's rpe_drive of a 44 m drive: two lengths, the second without a segment.
+RPE_DRIVE = {"lengths_m": [4.0, 8.0], "path_length_m": 44.1, "frames": 60, "n_segments": 40,
+             "trans_pct": _stats(1.5), "rot_deg_per_m": _stats(0.02),
+             "per_length": [{"length_m": 4.0, "n_segments": 40, "trans_m": _stats(0.06),
+                             "trans_pct": _stats(1.5), "rot_deg": _stats(0.08),
+                             "rot_deg_per_m": _stats(0.02)},
+                            {"length_m": 8.0, "n_segments": 0, "trans_m": None,
+                             "trans_pct": None, "rot_deg": None, "rot_deg_per_m": None}],
+             "note": None}
+
+
 def _row(name: str, **figures) -> dict:
     row = {"name": name, "error": None, "runtime_s": 1.5, "frames_per_s": 40.0, "landmarks": 12,
            "ate_m": 2.0, "ate_aligned_m": 1.0, "rpe_trans_pct": None,
-           "rpe_rot_deg_per_100m": None, "nees_pose_mean": 7.5, "map_rmse_m": 0.4,
+           "rpe_rot_deg_per_100m": None, "rpe_drive_trans_pct": 1.5,
+           "rpe_drive_rot_deg_per_m": 0.02, "rpe_drive": RPE_DRIVE,
+           "nees_pose_mean": 7.5, "map_rmse_m": 0.4,
            "nees_landmark_mean": 3.3,
            "vs_smoother": {"ate_m": 0.5, "ate_aligned_m": 0.25, "map_rmse_m": 0.1,
                            "nees_pose_mean": 6.1, "inside_95_fraction": 0.93}}
@@ -36,7 +55,8 @@ def _row(name: str, **figures) -> dict:
 
 
 def _bench(*rows: dict) -> dict:
-    return {"schema": 1, "rpe_definition": "KITTI", "alignment": "sim3",
+    return {"schema": BENCH_SCHEMA, "rpe_definition": "KITTI", "rpe_drive_definition": "fitted",
+            "alignment": "sim3",
             "alignment_definition": "ate_aligned_m: after a Sim(3) alignment",
             "estimators": [r["name"] for r in rows], "wall_s": 3.25,
             "sequences": [{"name": "drive", "path": None, "frames": 60, "has_ground_truth": True,
@@ -95,6 +115,36 @@ def test_bench_folder_as_typed_objects(tmp_path):
     assert res.files == [folder / "results.json", folder / "settings.json"]
 
 
+def test_the_drive_fitted_rpe_reads_as_typed_objects(tmp_path):
+    folder = _write(tmp_path / "a", results_json=_bench(_row("e"), _row("f", error="broke",
+                                                                        rpe_drive=None)))
+    bench = load_results(folder).bench
+    assert bench.rpe_drive_definition == "fitted"
+    e = bench.drives["drive"].estimators["e"]
+    assert e.rpe_drive_trans_pct == 1.5 and e.figure("rpe_drive_rot_deg_per_m") == 0.02
+    fitted = e.rpe_drive
+    assert isinstance(fitted, DriveRpe) and fitted.lengths_m == (4.0, 8.0)
+    assert fitted.lengths_text == "4 and 8 m" and fitted.note is None
+    assert fitted.path_length_m == 44.1 and fitted.frames == 60 and fitted.n_segments == 40
+    assert fitted.trans_pct == ErrorStats(1.5, 0.9 * 1.5, 1.1 * 1.5)
+    four, eight = fitted.per_length
+    assert four.length_m == 4.0 and four.n_segments == 40 and four.rot_deg.mean == 0.08
+    assert eight.n_segments == 0 and eight.trans_m is None
+    assert bench.drives["drive"].estimators["f"].rpe_drive is None
+
+
+def test_a_schema_1_folder_reads_without_the_drive_fitted_rpe(tmp_path):
+    old = _bench(_row("e"))
+    old["schema"] = 1
+    del old["rpe_drive_definition"]
+    for key in ("rpe_drive_trans_pct", "rpe_drive_rot_deg_per_m", "rpe_drive"):
+        del old["sequences"][0]["estimators"][0][key]
+    bench = load_results(_write(tmp_path / "old", results_json=old)).bench
+    e = bench.drives["drive"].estimators["e"]
+    assert bench.schema == 1 and bench.rpe_drive_definition is None
+    assert e.rpe_drive is None and e.rpe_drive_trans_pct is None and e.ate_m == 2.0
+
+
 def test_results_file_stands_for_its_folder_and_non_finite_is_none(tmp_path):
     text = json.dumps(_bench(_row("e"))).replace("2.0", "NaN", 1)
     folder = _write(tmp_path / "a", results_json=text)
@@ -137,6 +187,14 @@ BAD = {
                             "sequences[0].estimators[0].ate_m: expected a number"),
     "vs smoother figure": ({"results_json": json.dumps(_bench(_row(
         "e", vs_smoother={"ate_m": [1]})))}, "vs_smoother.ate_m: expected a number"),
+    "rpe_drive not an object": ({"results_json": json.dumps(_bench(_row("e", rpe_drive=3)))},
+                                "estimators[0].rpe_drive: expected an object"),
+    "rpe_drive length": ({"results_json": json.dumps(_bench(_row(
+        "e", rpe_drive={**RPE_DRIVE, "lengths_m": [4.0, -1]})))},
+        "rpe_drive.lengths_m[1]: expected a length"),
+    "rpe_drive statistics": ({"results_json": json.dumps(_bench(_row(
+        "e", rpe_drive={**RPE_DRIVE, "trans_pct": {"mean": "big"}})))},
+        "rpe_drive.trans_pct.mean: expected a number"),
     "landmarks not a count": ({"results_json": json.dumps(_bench(_row("e", landmarks=-3)))},
                               "estimators[0].landmarks: expected a count"),
     "duplicate estimator": ({"results_json": json.dumps(_bench(_row("e"), _row("e")))},
@@ -172,6 +230,26 @@ def test_schema_is_the_one_bench_writes():
     from vislam.eval.bench_scores import SCHEMA
 
     assert BENCH_SCHEMA == SCHEMA
+
+
+def test_bench_writes_the_drive_fitted_rpe_and_load_results_reads_it_back(tmp_path):
+    out = tmp_path / "bench"
+    assert main(["bench", "--frames", "40", "-e", "dead-reckoning", "--model", "as-given",
+                 "--quiet", "--out", str(out)]) == 0
+    raw = json.loads((out / "results.json").read_text())
+    assert raw["schema"] == BENCH_SCHEMA and raw["rpe_drive_definition"]
+    (row,) = raw["sequences"][0]["estimators"]
+    assert row["rpe_trans_pct"] is None  # 40 frames: no KITTI segment
+    assert row["rpe_drive_trans_pct"] > 0 and row["rpe_drive"]["note"] is None
+    assert row["rpe_drive"]["lengths_m"] and row["rpe_drive"]["n_segments"] > 0
+    est = load_results(out).bench.drives[raw["sequences"][0]["name"]].estimators["dead-reckoning"]
+    assert est.rpe_drive_trans_pct == row["rpe_drive_trans_pct"]
+    assert est.rpe_drive_rot_deg_per_m == row["rpe_drive_rot_deg_per_m"]
+    assert list(est.rpe_drive.lengths_m) == row["rpe_drive"]["lengths_m"]
+    for got, written in zip(est.rpe_drive.per_length, row["rpe_drive"]["per_length"]):
+        assert got.length_m == written["length_m"] and got.n_segments == written["n_segments"]
+        assert got.trans_m.rmse == written["trans_m"]["rmse"]
+        assert got.rot_deg_per_m.median == written["rot_deg_per_m"]["median"]
 
 
 @pytest.mark.slow

@@ -226,6 +226,29 @@ def test_written_file_loads_back_as_the_same_sequence(tmp_path):
     np.testing.assert_array_equal(loaded.calibration.cam_T_imu, seq.calibration.cam_T_imu)
 
 
+def test_default_drive_read_back_is_the_drive_in_memory(default_result, tmp_path):
+    from vislam.eval.loader import load_sequence
+
+    paths = write_simulation(default_result, tmp_path)
+    seq = default_result.sequence
+    loaded = load_sequence(paths["data"])
+    assert_same_sequence(loaded, seq)
+    np.testing.assert_array_equal(loaded.track_origin, seq.track_origin)
+    # the file grows with the observations: 48 bytes a row before compression, against the
+    # dense layout's 32 bytes a track and frame
+    assert paths["data"].stat().st_size < 48 * len(seq.obs)
+
+
+def test_a_drive_the_reader_would_refuse_is_not_written(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("VISLAM_MAX_ARRAY_BYTES", str(200 * 32))  # 200 stereo rows
+    out = tmp_path / "sim"
+    assert cli_main(["simulate", "--out", str(out), "--frames", "20"]) == 2
+    err = capsys.readouterr().err
+    assert "VISLAM_MAX_ARRAY_BYTES" in err and "observations" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists() or not any(out.iterdir())
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--seed", "-1"], "seed"),
     (["--frames", "1"], "n_frames"),

@@ -4,7 +4,9 @@ estimating.
 Prints frames and timing, tracks and observations, the invalid observations the loader dropped
 (partial or negative pixel coordinates, :mod:`eval.loader`), the repeated-observation events
 and bad disparities that the cleaning step repairs (:mod:`ekf.cleaning`), far points, velocity
-statistics, and whether ground truth was found.
+statistics, and whether ground truth was found. Either observation layout (dense or sparse) is
+read; a drive of monocular tracks is summarised too (no cleaning or disparity lines), with a
+line saying that the estimators refuse it.
 
 ``--check`` then solves the batch smoother under the settings (``--config`` and the estimator
 flags, as ``vislam run`` takes them; a ``[model]`` table's extrinsic and gyro bias applied to
@@ -23,7 +25,7 @@ import numpy as np
 
 from vislam.ekf.cleaning import clean_sequence, find_repeat_events
 from vislam.eval.groundtruth import find_ground_truth
-from vislam.eval.loader import load_sequence_with_report
+from vislam.eval.loader import load_sequence_with_report, require_stereo
 
 #: Depth (m) beyond which a point counts as far; its disparity is fsu * b / FAR_DEPTH px.
 FAR_DEPTH = 80.0
@@ -78,7 +80,13 @@ def _frames_text(frames: list[int]) -> str:
 
 def summarise(path: Path, gt_path: Path | None = None) -> list[str]:
     """The lines ``vislam inspect`` prints."""
-    seq, load_report = load_sequence_with_report(path)
+    return _summarise(path, gt_path)[0]
+
+
+def _summarise(path: Path, gt_path: Path | None = None):
+    """The lines ``vislam inspect`` prints, and the drive (stereo or monocular) they are of."""
+    seq, load_report = load_sequence_with_report(path, monocular=True)
+    stereo = seq.obs.is_stereo
     cal = seq.calibration
     lines = [f"file: {path}"]
     T = seq.n_frames
@@ -88,8 +96,11 @@ def summarise(path: Path, gt_path: Path | None = None) -> list[str]:
     lines.append(f"dt (s): {_mmm(dt, '{:.4f}')}" if dt.size else "dt (s): n/a (one frame)")
     lines.append(
         f"calibration: fsu {cal.fsu:.2f} fsv {cal.fsv:.2f} cu {cal.cu:.2f} cv {cal.cv:.2f} "
-        f"px, baseline {cal.baseline:.4f} m"
+        + (f"px, baseline {cal.baseline:.4f} m" if np.isfinite(cal.baseline) else "px, no baseline")
     )
+    if not stereo:
+        lines.append("camera: monocular tracks ([u, v]); vislam's estimators are stereo and "
+                     "refuse this drive: it needs a raw-IMU estimator")
 
     lengths = seq.track_lengths()
     observed = lengths[lengths > 0]
@@ -113,13 +124,50 @@ def summarise(path: Path, gt_path: Path | None = None) -> list[str]:
     )
 
     events = find_repeat_events(seq)
+    if stereo:  # the cleaning step and disparities are stereo
+        lines += _stereo_lines(seq, events)
+    else:
+        lines.append(
+            f"repeated-observation events: {len(events)} frames, "
+            f"{sum(e.n_repeats for e in events)} repeats (tracks repeating their previous "
+            "observation exactly)")
+        if events:
+            lines.append(f"  event frames: {_frames_text([e.frame for e in events])}")
+
+    v = seq.linear_velocity
+    w = seq.angular_velocity
+    nv = np.linalg.norm(v, axis=1)
+    nw = np.linalg.norm(w, axis=1)
+    lines.append(
+        f"|v| (m/s): mean {nv.mean():.3f} std {nv.std():.3f} max {nv.max():.3f}; "
+        f"per-axis mean {np.array2string(v.mean(axis=0), precision=3)}"
+    )
+    lines.append(
+        f"|w| (rad/s): mean {nw.mean():.4f} std {nw.std():.4f} max {nw.max():.4f}; "
+        f"per-axis mean {np.array2string(w.mean(axis=0), precision=4)}"
+    )
+
+    gt = find_ground_truth(path, override=gt_path, calibration=cal, n_frames=T)
+    if gt is None:
+        lines.append("ground truth: none found")
+    else:
+        length = float(np.sum(np.linalg.norm(np.diff(gt.poses[:, :3, 3], axis=0), axis=1)))
+        lines.append(
+            f"ground truth: {gt.source}, covers {gt.covers(T)}, path length {length:.1f} m"
+        )
+    return lines, seq
+
+
+def _stereo_lines(seq, events) -> list[str]:
+    """The lines of a stereo drive's repeats, cleaning and disparities."""
+    cal = seq.calibration
     _, report = clean_sequence(seq, min_disparity=TINY_DISPARITY)
     n_event_repeats = sum(e.n_repeats for e in events)
-    lines.append(
+    lines = [
         f"repeated-observation events: {len(events)} frames, {n_event_repeats} repeats "
         f"(tracks repeating their previous observation exactly; {report.n_isolated_repeats} "
         "more outside events)"
-    )
+    ]
     if events:
         lines.append(f"  event frames: {_frames_text([e.frame for e in events])}")
         lines.append(
@@ -144,28 +192,6 @@ def summarise(path: Path, gt_path: Path | None = None) -> list[str]:
         f"far points: {n_far} observations with disparity {TINY_DISPARITY:g}-{far_disp:.2f} px "
         f"(depth > {FAR_DEPTH:g} m)"
     )
-
-    v = seq.linear_velocity
-    w = seq.angular_velocity
-    nv = np.linalg.norm(v, axis=1)
-    nw = np.linalg.norm(w, axis=1)
-    lines.append(
-        f"|v| (m/s): mean {nv.mean():.3f} std {nv.std():.3f} max {nv.max():.3f}; "
-        f"per-axis mean {np.array2string(v.mean(axis=0), precision=3)}"
-    )
-    lines.append(
-        f"|w| (rad/s): mean {nw.mean():.4f} std {nw.std():.4f} max {nw.max():.4f}; "
-        f"per-axis mean {np.array2string(w.mean(axis=0), precision=4)}"
-    )
-
-    gt = find_ground_truth(path, override=gt_path, calibration=cal, n_frames=T)
-    if gt is None:
-        lines.append("ground truth: none found")
-    else:
-        length = float(np.sum(np.linalg.norm(np.diff(gt.poses[:, :3, 3], axis=0), axis=1)))
-        lines.append(
-            f"ground truth: {gt.source}, covers {gt.covers(T)}, path length {length:.1f} m"
-        )
     return lines
 
 
@@ -241,7 +267,10 @@ def run(args: argparse.Namespace) -> int:
 
         print("\n".join(summarise_inertial(args.file, args.gt)))
         return 0
-    for line in summarise(args.file, args.gt):
+    lines, seq = _summarise(args.file, args.gt)
+    if check is not None:
+        require_stereo(seq, args.file)  # --check runs the (stereo) smoother
+    for line in lines:
         print(line)
     if check is not None:
         config, settings, model, stretch = check
