@@ -454,10 +454,12 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
         graph = _graph(problem, solution.rows, solution.anchors, robust=False)
         try:
             marginals = gtsam.Marginals(graph, values)
-            for k in range(T):
-                est.pose_cov[k] = gtsam_cov_to_estimate(marginals.marginalCovariance(X(k)))
-                velocity_cov[k] = marginals.marginalCovariance(V(k))
-                bias_cov[k] = gtsam_bias_cov_to_vislam(marginals.marginalCovariance(B(k)))
+            for k in range(T):  # one joint block per frame: [X (6), V (3), B (6)]
+                keys = gtsam.KeyVector([X(k), V(k), B(k)])
+                P = marginals.jointMarginalCovariance(keys).fullMatrix()
+                est.pose_cov[k] = gtsam_cov_to_estimate(P[0:6, 0:6])
+                velocity_cov[k] = P[6:9, 6:9]
+                bias_cov[k] = gtsam_bias_cov_to_vislam(P[9:15, 9:15])
             for j in solution.tracks.tolist():
                 est.landmark_cov[j] = marginals.marginalCovariance(L(j))
         except RuntimeError as exc:

@@ -201,7 +201,7 @@ def _smooth_step(t, start):
     return b, db, ddb
 
 
-def synthetic_drive(seed: int = 0, duration: float = 6.0, rest_s: float = 1.0) -> tuple[InertialDrive, np.ndarray]:
+def synthetic_drive(seed: int = 0, duration: float = 4.0, rest_s: float = 1.0) -> tuple[InertialDrive, np.ndarray]:
     """A rig at rest for ``rest_s``, then turning about the vertical and moving on a smooth
     curve in a ring of landmarks: 200 Hz IMU with white noise, 20 Hz monocular tracks with
     0.5 px noise. Returns the drive and the true ``world_T_imu`` at its frames."""
