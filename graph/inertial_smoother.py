@@ -59,6 +59,7 @@ from vislam.ekf.conventions import gtsam_cov_to_estimate
 from vislam.ekf.inertial import InertialDrive
 from vislam.graph.inertial_conventions import from_gtsam_bias, gtsam_bias_cov_to_vislam
 from vislam.graph.inertial_factors import preintegrate, preintegration_params, triangulate_track
+from vislam.graph.inertial_marginals import frame_and_landmark_covariances
 from vislam.graph.inertial_init import RestDetector, RestInterval, detect_rest, gravity_aligned_rotation
 from vislam.graph.pose_conversions import estimation_error
 
@@ -97,8 +98,9 @@ class InertialSmootherSettings:
     #: Levenberg-Marquardt's stopping rule.
     max_iterations: int = 50
     relative_error_tol: float = 1e-6
-    #: iSAM2's relinearisation threshold.
+    #: iSAM2's relinearisation threshold and the updates between relinearisation checks.
     isam_relinearize_threshold: float = 0.01
+    isam_relinearize_skip: int = 1
     compute_marginals: bool = True
 
 
@@ -253,7 +255,7 @@ def incremental_solve(problem: InertialProblem) -> Solution:
     start = time.perf_counter()
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(s.isam_relinearize_threshold)
-    params.relinearizeSkip = 1
+    params.relinearizeSkip = s.isam_relinearize_skip
     isam = gtsam.ISAM2(params)
     full = gtsam.NonlinearFactorGraph()
     new = problem.priors()
@@ -453,17 +455,15 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
     if s.compute_marginals:
         graph = _graph(problem, solution.rows, solution.anchors, robust=False)
         try:
-            marginals = gtsam.Marginals(graph, values)
-            for k in range(T):  # one joint block per frame: [X (6), V (3), B (6)]
-                keys = gtsam.KeyVector([X(k), V(k), B(k)])
-                P = marginals.jointMarginalCovariance(keys).fullMatrix()
-                est.pose_cov[k] = gtsam_cov_to_estimate(P[0:6, 0:6])
-                velocity_cov[k] = P[6:9, 6:9]
-                bias_cov[k] = gtsam_bias_cov_to_vislam(P[9:15, 9:15])
-            for j in solution.tracks.tolist():
-                est.landmark_cov[j] = marginals.marginalCovariance(L(j))
-        except RuntimeError as exc:
+            P, Pl = frame_and_landmark_covariances(graph, values, T, solution.tracks)
+        except (RuntimeError, np.linalg.LinAlgError) as exc:
             raise estimation_error(exc, "computing marginals", estimator=ESTIMATOR) from None
+        for k in range(T):  # one joint block per frame: [X (6), V (3), B (6)]
+            est.pose_cov[k] = gtsam_cov_to_estimate(P[k, 0:6, 0:6])
+            velocity_cov[k] = P[k, 6:9, 6:9]
+            bias_cov[k] = gtsam_bias_cov_to_vislam(P[k, 9:15, 9:15])
+        for i, j in enumerate(solution.tracks.tolist()):
+            est.landmark_cov[j] = Pl[i]
     timing = dict(solution.timing, marginals_s=time.perf_counter() - start)
     obs = drive.obs
     frames = _frames_of(obs, solution.rows)

@@ -201,7 +201,8 @@ def _smooth_step(t, start):
     return b, db, ddb
 
 
-def synthetic_drive(seed: int = 0, duration: float = 4.0, rest_s: float = 1.0) -> tuple[InertialDrive, np.ndarray]:
+def synthetic_drive(seed: int = 0, duration: float = 4.0, rest_s: float = 1.0, n_lm: int = 300
+                    ) -> tuple[InertialDrive, np.ndarray]:
     """A rig at rest for ``rest_s``, then turning about the vertical and moving on a smooth
     curve in a ring of landmarks: 200 Hz IMU with white noise, 20 Hz monocular tracks with
     0.5 px noise. Returns the drive and the true ``world_T_imu`` at its frames."""
@@ -235,7 +236,6 @@ def synthetic_drive(seed: int = 0, duration: float = 4.0, rest_s: float = 1.0) -
     cam_T_imu = np.eye(4)
     cam_T_imu[:3, :3], cam_T_imu[:3, 3] = cam_R_imu, [0.02, -0.01, 0.03]
     K = np.array([[400.0, 0, 320], [0, 400, 240], [0, 0, 1]])
-    n_lm = 300
     angle = rng.uniform(-np.pi, np.pi, n_lm)
     landmarks = np.stack([4 * np.cos(angle), 4 * np.sin(angle), rng.uniform(-1.5, 1.5, n_lm)], axis=1)
     rows_f, rows_j, rows_z = [], [], []
@@ -291,3 +291,25 @@ def test_a_drive_without_rest_cannot_be_initialised():
     drive, _ = synthetic_drive(duration=3.0, rest_s=0.1)
     with pytest.raises(EstimationError, match="cannot be initialised"):
         build_problem(drive)
+
+
+def test_one_pass_marginals_equal_gtsam_marginals():
+    """graph.inertial_marginals against gtsam.Marginals key by key on a short drive."""
+    import gtsam
+    from gtsam.symbol_shorthand import B, L, V, X
+
+    from vislam.graph.inertial_marginals import frame_and_landmark_covariances
+    from vislam.graph.inertial_smoother import _graph, batch_solve, incremental_solve
+
+    drive, _ = synthetic_drive(seed=1, duration=2.0, n_lm=60)
+    problem = build_problem(drive, InertialSmootherSettings(pixel_sigma=0.5))
+    sol = batch_solve(problem, incremental_solve(problem))
+    graph = _graph(problem, sol.rows, sol.anchors, robust=False)
+    P, Pl = frame_and_landmark_covariances(graph, sol.values, drive.n_frames, sol.tracks)
+    m = gtsam.Marginals(graph, sol.values)
+    for k in range(0, drive.n_frames, 7):
+        ref = m.jointMarginalCovariance(gtsam.KeyVector([X(k), V(k), B(k)])).fullMatrix()
+        np.testing.assert_allclose(P[k], ref, rtol=1e-6, atol=1e-12 * np.abs(ref).max())
+    for i in range(0, sol.tracks.size, 5):
+        ref = m.marginalCovariance(L(int(sol.tracks[i])))
+        np.testing.assert_allclose(Pl[i], ref, rtol=1e-6, atol=1e-12)
