@@ -11,6 +11,14 @@ This is, up to the sign of ``xi``, the paper's left perturbation of the inverse 
 the filter is stored as it is. Conversions to and from other conventions (GTSAM's Pose3,
 left perturbations) live in :mod:`ekf.conventions`.
 
+Raw-IMU drives (:class:`ekf.inertial.InertialDrive`, the smoother of
+:mod:`graph.inertial_smoother`): the world is **gravity-aligned** instead (z up, against
+gravity), with its origin at the IMU at camera frame 0 and the yaw of the IMU at frame 0 (the
+least rotation taking the measured up direction onto z: :mod:`graph.inertial_init`); poses are
+``world_T_imu`` at the camera frames, in the same covariance convention. Velocities and IMU
+biases have no field here: the smoother returns them beside the Estimate
+(:class:`graph.inertial_smoother.InertialStates`).
+
 Landmarks: ``landmarks[j]`` the world position of track j, ``landmark_cov[j]`` its 3x3
 covariance; both NaN where track j got no landmark.
 """
