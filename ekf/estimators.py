@@ -24,8 +24,11 @@ from vislam.ekf.estimate import Estimate
 from vislam.ekf.runner import Progress
 from vislam.ekf.sequence import Sequence
 
-#: The entry-point group every estimator, vislam's own and a plug-in's, is registered in.
+#: The entry-point group every estimator of velocity drives, vislam's own and a plug-in's, is
+#: registered in.
 ENTRY_POINT_GROUP = "vislam.estimators"
+#: The group of the estimators of raw-IMU drives (:class:`ekf.inertial.InertialDrive`).
+INERTIAL_ENTRY_POINT_GROUP = "vislam.inertial_estimators"
 
 #: The package whose entry points are vislam's own.
 DISTRIBUTION = "vislam"
@@ -37,14 +40,14 @@ FILTER_PACKAGE = "vislam.ekf."
 SMOOTHER_INITIALISERS: tuple[str, ...] = ("ekf-invariant", "ekf-joint")
 
 
-def builtin_entry_points() -> dict[str, str]:
-    """vislam's own estimators: name -> ``module:attribute``, in pyproject.toml's order (a new
-    dict)."""
-    return dict(_read_entry_points())
+def builtin_entry_points(group: str = ENTRY_POINT_GROUP) -> dict[str, str]:
+    """vislam's own estimators of ``group``: name -> ``module:attribute``, in pyproject.toml's
+    order (a new dict)."""
+    return dict(_read_entry_points(group))
 
 
 @functools.lru_cache(maxsize=None)
-def _read_entry_points() -> dict[str, str]:
+def _read_entry_points(group: str = ENTRY_POINT_GROUP) -> dict[str, str]:
     pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
     try:
         import tomllib
@@ -53,11 +56,11 @@ def _read_entry_points() -> dict[str, str]:
     if tomllib is not None and pyproject.is_file():
         project = tomllib.loads(pyproject.read_text(encoding="utf-8")).get("project", {})
         if project.get("name") == DISTRIBUTION:
-            return dict(project.get("entry-points", {}).get(ENTRY_POINT_GROUP, {}))
+            return dict(project.get("entry-points", {}).get(group, {}))
     from importlib.metadata import distribution
 
     return {ep.name: ep.value for ep in distribution(DISTRIBUTION).entry_points
-            if ep.group == ENTRY_POINT_GROUP}
+            if ep.group == group}
 
 
 def filter_names() -> tuple[str, ...]:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vislam.ekf.config import FilterConfig
-from vislam.ekf.errors import EstimationError
+from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.estimate import Estimate
 from vislam.eval.atomic import atomic_symlink, write_json, write_text
 from vislam.eval.bench_scores import (
@@ -23,12 +23,12 @@ from vislam.eval.bench_scores import (
     score_sequence,
 )
 from vislam.eval.drive_figures import sequence_figures
-from vislam.eval.drives import BenchSequence
+from vislam.eval.drives import BenchSequence, is_raw_imu
 from vislam.eval.export import write_tum
 from vislam.eval.metrics import ALIGN_DESCRIPTIONS, check_align_mode
 from vislam.eval.output_dir import OutputDir
 from vislam.eval.readings import summary_markdown
-from vislam.eval.registry import file_stem
+from vislam.eval.registry import DEFAULT_BENCH, DEFAULT_BENCH_INERTIAL, applicable, file_stem
 from vislam.eval.report import report_html
 from vislam.eval.signals import deferred
 from vislam.eval.study import JobResult, run_jobs
@@ -77,8 +77,14 @@ def run_benchmark(
     before the first job starts and written as :mod:`eval.output_dir` says (``force``: write
     beside files vislam did not write, never over them). ``executor`` and ``scheduler``: where
     the jobs run (:func:`eval.study.run_jobs`)."""
-    check_align_mode(align)
+    if align is not None:
+        check_align_mode(align)
     t0 = time.perf_counter()
+    # the estimators that run on at least one drive (each drive runs those of its kind)
+    estimators = [n for n in estimators if any(n in applicable([n], b.sequence) for b in sequences)]
+    if not estimators:
+        raise InputError("no estimator given runs on these drives: velocity drives take "
+                         f"{', '.join(DEFAULT_BENCH)}, raw-IMU drives {', '.join(DEFAULT_BENCH_INERTIAL)}")
     by_key = {bs.name: bs.sequence for bs in sequences}
     smoother = smoother if smoother is not None else SmootherSettings()
     inputs = [b.path for b in sequences if b.path]
@@ -100,6 +106,21 @@ def run_benchmark(
     return BenchOutput(Path(out_dir), results, summary, time.perf_counter() - t0, failures)
 
 
+def drive_alignment(align: str | None, bs) -> str:
+    """The alignment of ``bs``'s aligned ATE: ``align`` where given, else se3 for a velocity
+    drive and yaw (4-DoF: rotation about gravity and translation) for a raw-IMU drive, whose
+    roll and pitch gravity makes observable."""
+    if align is not None:
+        return align
+    return "yaw" if is_raw_imu(bs) else "se3"
+
+
+def _alignment_definition(align: str | None, sequences) -> str:
+    used = dict.fromkeys(drive_alignment(align, b) for b in sequences)
+    return "ate_aligned_m (ATE al.): the ATE after " + "; raw-IMU drives: ".join(
+        ALIGN_DESCRIPTIONS[a] for a in used)
+
+
 def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smoother, settings,
                    t0: float, align: str = "se3") -> tuple[dict, str]:
     results = {
@@ -108,14 +129,15 @@ def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smo
         "rpe_drive_definition": RPE_DRIVE_DEFINITION,
         "reference": "vs_smoother compares with the batch smoother ('smoother'), or with "
                      "'smoother-isam2' when only that ran",
-        "alignment": align,
-        "alignment_definition": f"ate_aligned_m (ATE al.): the ATE after {ALIGN_DESCRIPTIONS[align]}",
+        "alignment": align or "se3",
+        "alignment_definition": _alignment_definition(align, sequences),
         "estimators": list(estimators),
         "sequences": [],
     }
     for bs in sequences:
-        outs = {n: outcomes[(bs.name, n)] for n in estimators if (bs.name, n) in outcomes}
-        results["sequences"].append(score_sequence(bs, estimators, outs, align=align))
+        names = applicable(estimators, bs.sequence)
+        outs = {n: outcomes[(bs.name, n)] for n in names if (bs.name, n) in outcomes}
+        results["sequences"].append(score_sequence(bs, names, outs, align=drive_alignment(align, bs)))
         ests = {n: o.estimate for n, o in outs.items() if isinstance(o, JobResult)}
         folder = tmp / bs.name
         for name, est in ests.items():
@@ -130,7 +152,7 @@ def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smo
     write_json(tmp / "settings.json", {
         "estimators": list(estimators),
         "jobs": jobs,
-        "alignment": align,
+        "alignment": align or "se3",
         "filter": config.to_dict(),
         "smoother": smoother.to_dict(),
         "sequences": [{"name": b.name, "path": b.path, **(b.origin or {}),

@@ -42,9 +42,10 @@ from vislam.eval.consistency import (
     pose_nees,
     versus_smoother,
 )
-from vislam.eval.drives import BenchSequence
+from vislam.eval.drives import BenchSequence, is_raw_imu
+from vislam.eval.inertial_truth import frame0_gauge
 from vislam.eval.metrics import check_align_mode, drive_rpe, kitti_drift
-from vislam.eval.registry import SMOOTHERS
+from vislam.eval.registry import INERTIAL_SMOOTHERS, SMOOTHERS
 from vislam.eval.study import JobFailure, JobResult
 
 #: The results.json schema written here; 2 added the drive-fitted RPE (``rpe_drive*``).
@@ -150,8 +151,9 @@ def _finite(x):
 
 
 def reference_smoother(ests: dict[str, Estimate]) -> str | None:
-    """The smoother the EKFs are compared with: the batch one if it ran, else iSAM2."""
-    return next((n for n in SMOOTHERS if n in ests), None)
+    """The smoother the EKFs are compared with: the batch one if it ran, else iSAM2; on a
+    raw-IMU drive the raw-IMU smoother."""
+    return next((n for n in SMOOTHERS + INERTIAL_SMOOTHERS if n in ests), None)
 
 
 def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict,
@@ -175,7 +177,10 @@ def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict,
         row["runtime_s"] = o.wall_s
         row["frames_per_s"] = est.n_frames / o.wall_s if o.wall_s > 0 else None
         row["landmarks"] = int(np.count_nonzero(est.has_landmark))
-        scores = trajectory_scores(est, bs.gt, align=align)
+        gt = bs.gt
+        if gt is not None and is_raw_imu(bs) and est.n_frames:
+            gt = frame0_gauge(gt, est.poses[0])  # the estimate's own yaw and origin at frame 0
+        scores = trajectory_scores(est, gt, align=align)
         for k in TRAJECTORY_KEYS:
             row[k] = scores[k]
         if bs.landmark_truth is not None and row["landmarks"]:
@@ -183,7 +188,7 @@ def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict,
             nees = landmark_nees(est, bs.landmark_truth)
             if np.any(np.isfinite(nees)):
                 row["nees_landmark_mean"] = float(np.nanmean(nees))
-        if ref is not None and name not in SMOOTHERS:
+        if ref is not None and name not in SMOOTHERS + INERTIAL_SMOOTHERS:
             row["vs_smoother"] = versus_smoother(est, ests[ref], align=align)
         rows.append(row)
     return {
@@ -194,6 +199,7 @@ def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict,
         "has_landmark_truth": bs.landmark_truth is not None,
         "model": bs.model,
         "reference_smoother": ref,
+        "alignment": align,
         "estimators": rows,
     }
 

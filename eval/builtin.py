@@ -66,3 +66,27 @@ def smoother_fixed_lag(seq: Sequence, settings) -> Estimate:
     from vislam.graph.isam2 import run_fixed_lag
 
     return run_fixed_lag(seq, settings.filter, progress=settings.progress, settings=settings.smoother)
+
+
+def dead_reckoning_imu(drive, settings) -> Estimate:
+    """Raw-IMU dead reckoning: strapdown integration from a rest at the start, with its
+    propagated covariance (:mod:`ekf.inertial_dead_reckoning`)."""
+    from vislam.ekf.inertial_dead_reckoning import run_inertial_dead_reckoning
+
+    est = run_inertial_dead_reckoning(drive)
+    est.name = "dead-reckoning-imu"
+    return est
+
+
+def smoother_imu(drive, settings) -> Estimate:
+    """GTSAM's visual-inertial smoother: preintegrated IMU factors between camera frames,
+    projection factors for the tracks (:mod:`graph.inertial_smoother`)."""
+    from vislam.graph.inertial_smoother import smooth
+
+    est = smooth(drive).estimate
+    est.name = "smoother-imu"
+    return est
+
+
+dead_reckoning_imu.drive_kind = "raw-imu"
+smoother_imu.drive_kind = "raw-imu"

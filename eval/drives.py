@@ -98,9 +98,21 @@ def _where_the_drives_are() -> str:
 
 
 def load_bench_sequence(path: Path) -> BenchSequence:
-    """A data file, its ground truth (if found) and, for simulated files, the true landmarks."""
+    """A data file, its ground truth (if found) and, for simulated files, the true landmarks.
+    A raw-IMU drive (:mod:`eval.inertial_files`) comes with its ground truth at the camera
+    frames in the estimates' gravity-aligned world (:mod:`eval.inertial_truth`)."""
     from vislam.eval.groundtruth import find_ground_truth
+    from vislam.eval.inertial_files import is_inertial_file, load_inertial_drive
     from vislam.eval.loader import load_sequence
+
+    if is_inertial_file(path):
+        from vislam.eval.inertial_truth import find_inertial_truth
+
+        drive = load_inertial_drive(path)
+        truth = find_inertial_truth(path, drive)
+        return BenchSequence(path.stem, str(path.resolve()), drive,
+                             None if truth is None else truth.truth,
+                             landmark_truth_beside(path, drive))
 
     seq = load_sequence(path, clean=False)
     gt = find_ground_truth(path)
@@ -146,6 +158,9 @@ def apply_model_to(sequences: list[BenchSequence], model, config: FilterConfig |
 
     out = []
     for bs in sequences:
+        if is_raw_imu(bs):
+            out += as_given([bs])
+            continue
         gt = bs.gt
         converted = gt is not None and hasattr(gt, "with_extrinsic")
         if converted:
@@ -186,6 +201,18 @@ def _lever_arm_record(gt, seq: Sequence, model) -> dict:
     return record
 
 
+#: What a raw-IMU drive is run under, in words (results.json's model record).
+RAW_IMU_MODEL = ("not identified: raw-IMU drives are run under the file's calibration and the "
+                 "IMU's data-sheet noise (identification of raw-IMU drives: issue 39)")
+
+
+def is_raw_imu(bs: BenchSequence) -> bool:
+    """Whether ``bs`` is a raw-IMU drive (:class:`ekf.inertial.InertialDrive`)."""
+    from vislam.ekf.inertial import InertialDrive
+
+    return isinstance(bs.sequence, InertialDrive)
+
+
 def as_given(sequences: list[BenchSequence]) -> list[BenchSequence]:
     """Each drive with the file's values and the settings as given (``--model as-given``)."""
     out = []
@@ -209,6 +236,11 @@ def identify_models(sequences: list[BenchSequence], config: FilterConfig,
 
     out = []
     for bs in sequences:
+        if is_raw_imu(bs):
+            (given,) = as_given([bs])
+            given.model["identification"] = RAW_IMU_MODEL
+            out.append(given)
+            continue
         announce = None if on_start is None else (lambda bs=bs: on_start(bs))
         try:
             found = identified_model(bs.sequence, config, smoother, on_miss=announce)

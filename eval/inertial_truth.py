@@ -10,8 +10,10 @@ given with ``--gt``. Here it becomes an :class:`eval.groundtruth.GroundTruth`:
   linearly, rotation by slerp) when they are at most :data:`MAX_INTERPOLATION_GAP_S` apart; a
   frame without is left out (the ground truth "covers" fewer frames);
 - **in the estimates' world** (:data:`RAW_IMU_WORLD`): gravity-aligned, z up, origin at the
-  IMU at frame 0, x along the IMU's heading at frame 0 (its x axis projected on the horizontal
-  plane). ``T_world_gt = Y^-1 T_file`` with ``Y`` the yaw-and-position of the IMU at frame 0.
+  IMU at frame 0, and the IMU's orientation at frame 0 the rotation of smallest angle that
+  takes its up direction onto z (:func:`ekf.imu_init.level_rotation`: what an estimator
+  initialised from a rest knows, and what dead reckoning and the smoother use).
+  ``T_world_gt = W T_file(0)^-1 T_file`` with ``W = [level_rotation(up at frame 0), 0]``.
   Roll and pitch stay absolute (gravity fixes them), so a pose NEES needs no alignment beyond
   the gauge an estimator fixes itself; ATE aligns in yaw and translation (4-DoF).
 """
@@ -26,6 +28,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from vislam.ekf.errors import InputError
+from vislam.ekf.imu_init import level_rotation
 from vislam.ekf.inertial import InertialDrive
 from vislam.eval.groundtruth import GroundTruth
 from vislam.eval.trajectory_files import TimedTrajectory, read_trajectory
@@ -35,8 +38,8 @@ SAME_INSTANT_S = 1e-5
 #: Interpolate only between ground-truth poses at most this far apart (s).
 MAX_INTERPOLATION_GAP_S = 0.1
 #: The world frame of raw-IMU estimates, in words (reports and docs).
-RAW_IMU_WORLD = ("gravity-aligned (z up), origin at the IMU at frame 0, x along its heading "
-                 "at frame 0")
+RAW_IMU_WORLD = ("gravity-aligned (z up), origin at the IMU at frame 0, its orientation there "
+                 "the least rotation taking its up direction to z")
 
 
 @dataclass(frozen=True)
@@ -56,14 +59,13 @@ def inertial_truth_path(npz_path: str | os.PathLike) -> Path:
     return p.parent / "groundtruth" / f"{p.stem}.csv"
 
 
-def heading_frame(pose: np.ndarray) -> np.ndarray:
-    """``Y`` (4, 4): the rotation about z by the heading of ``pose``'s x axis, and its position."""
-    R = pose[:3, :3]
-    yaw = float(np.arctan2(R[1, 0], R[0, 0]))
-    Y = np.eye(4)
-    Y[:3, :3] = Rotation.from_euler("z", yaw).as_matrix()
-    Y[:3, 3] = pose[:3, 3]
-    return Y
+def world_from_file(pose0: np.ndarray) -> np.ndarray:
+    """``W T0^-1`` (4, 4): takes the file's world to the estimates' world, for the file's pose
+    ``pose0`` of the IMU at frame 0 (module docstring)."""
+    up = pose0[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    W = np.eye(4)
+    W[:3, :3] = level_rotation(up)
+    return W @ np.linalg.inv(pose0)
 
 
 def at_frames(traj: TimedTrajectory, frame_times: np.ndarray
@@ -111,7 +113,7 @@ def inertial_truth(drive: InertialDrive, traj: TimedTrajectory) -> InertialTruth
         raise InputError(f"{traj.source}: no ground-truth pose at the drive's first frame "
                          f"({frame_times[0]:.6f} s; the file covers {traj.times[0]:.6f} to "
                          f"{traj.times[-1]:.6f} s): the estimates' world is defined there")
-    Y_inv = np.linalg.inv(heading_frame(poses[0]))
+    Y_inv = world_from_file(poses[0])
     world_poses = Y_inv @ poses
     truth = GroundTruth(frames, world_poses, traj.source, times=drive.timestamps[frames])
     if state is None:
@@ -128,3 +130,28 @@ def find_inertial_truth(npz_path: str | os.PathLike, drive: InertialDrive,
     if override is None and not (path.exists() or path.is_symlink()):
         return None
     return inertial_truth(drive, read_trajectory(path))
+
+
+def frame0_gauge(truth: GroundTruth, est_pose0: np.ndarray) -> GroundTruth:
+    """``truth`` moved by the rotation about gravity and the translation that put its frame-0
+    pose on the estimate's in position and yaw (``est_pose0``, world_T_imu at frame 0).
+
+    A raw-IMU estimate fixes its world's yaw and origin at frame 0 from its own tilt there (the
+    least rotation from its measured up direction to z): a tilt error of a few mrad moves that
+    yaw by as much wherever the IMU's up is far from its z axis (EuRoC's IMU has x up), while the
+    estimate's covariance rightly gives yaw and position at frame 0 no uncertainty (they are its
+    gauge). So pose errors are scored in the estimate's gauge: ``T' = G T`` with
+    ``G = [Rz(psi), p_est0 - Rz(psi) p_gt0]`` and ``psi`` the best rotation about z from the
+    truth's frame-0 rotation onto the estimate's (closed form: ``M = A B^T``,
+    ``psi = atan2(M10 - M01, M00 + M11)``, ``A`` the estimate's and ``B`` the truth's)."""
+    if truth.n == 0 or truth.frames[0] != 0:
+        return truth
+    B, A = truth.poses[0, :3, :3], np.asarray(est_pose0)[:3, :3]
+    M = A @ B.T
+    psi = float(np.arctan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1]))
+    G = np.eye(4)
+    G[:3, :3] = Rotation.from_euler("z", psi).as_matrix()
+    G[:3, 3] = np.asarray(est_pose0)[:3, 3] - G[:3, :3] @ truth.poses[0, :3, 3]
+    from dataclasses import replace
+
+    return replace(truth, poses=G @ truth.poses)

@@ -161,9 +161,17 @@ def rpe_length_table(s: dict) -> tuple[str, list[str], list[list[str]]] | None:
 
 
 def _alignment_words(results: dict) -> str:
-    """The alignment of the results' aligned ATEs in words (SE(3) when not recorded)."""
-    mode = results.get("alignment") or "se3"
-    return ALIGN_DESCRIPTIONS.get(mode, f"{mode} alignment")
+    """The alignment of the results' aligned ATEs in words (SE(3) when not recorded); where the
+    drives differ (raw-IMU drives are aligned in yaw by default), each mode with its drives."""
+    default = results.get("alignment") or "se3"
+    modes: dict[str, list[str]] = {}
+    for s in results.get("sequences", []):
+        modes.setdefault(s.get("alignment") or default, []).append(s["name"])
+    if len(modes) <= 1:
+        mode = next(iter(modes), default)
+        return ALIGN_DESCRIPTIONS.get(mode, f"{mode} alignment")
+    return "; ".join(f"{ALIGN_DESCRIPTIONS.get(m, m)} on {', '.join(names)}"
+                     for m, names in modes.items())
 
 
 def sequence_table(s: dict) -> tuple[list[str], list[list[str]]]:

@@ -64,8 +64,8 @@ from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.filter import is_filter_class
-from vislam.ekf.estimators import (DISTRIBUTION, ENTRY_POINT_GROUP, SMOOTHER_INITIALISERS,
-                                   builtin_entry_points, filter_names)
+from vislam.ekf.estimators import (DISTRIBUTION, ENTRY_POINT_GROUP, INERTIAL_ENTRY_POINT_GROUP,
+                                   SMOOTHER_INITIALISERS, builtin_entry_points, filter_names)
 from vislam.ekf.runner import COVARIANCE_RTOL, covariance_defects
 from vislam.graph.settings import SmootherSettings
 
@@ -80,6 +80,17 @@ ESTIMATOR_NAMES: tuple[str, ...] = tuple(BUILTIN_ENTRY_POINTS)
 #: What ``vislam bench`` runs unless told otherwise: every estimator but the fixed-lag smoother
 #: (iSAM2 is in since it runs within twice the batch smoother's time: 0034 7 s against 11 s).
 DEFAULT_BENCH: tuple[str, ...] = tuple(n for n in ESTIMATOR_NAMES if n != "smoother-fixed-lag")
+
+#: vislam's own estimators of raw-IMU drives (:class:`ekf.inertial.InertialDrive`), in table
+#: order: a second entry-point group, so that every list above stays that of velocity drives.
+INERTIAL_ENTRY_POINTS: dict[str, str] = builtin_entry_points(INERTIAL_ENTRY_POINT_GROUP)
+INERTIAL_ESTIMATOR_NAMES: tuple[str, ...] = tuple(INERTIAL_ENTRY_POINTS)
+#: What ``vislam bench`` runs on a raw-IMU drive unless told otherwise.
+DEFAULT_BENCH_INERTIAL: tuple[str, ...] = INERTIAL_ESTIMATOR_NAMES
+#: The reference smoothers of raw-IMU drives.
+INERTIAL_SMOOTHERS: tuple[str, ...] = tuple(n for n in INERTIAL_ESTIMATOR_NAMES if n.startswith("smoother"))
+#: Drive kinds: a velocity drive (:class:`ekf.sequence.Sequence`) or a raw-IMU drive.
+DRIVE_KINDS = ("velocity", "raw-imu")
 
 #: The EKFs whose estimate the batch smoother starts from, first available wins.
 SMOOTHER_INITIAL_FROM: tuple[str, ...] = SMOOTHER_INITIALISERS
@@ -147,8 +158,35 @@ def entry_points() -> dict[str, str]:
 
 
 def known_names() -> list[str]:
-    """Every estimator name, vislam's own first (table order), then installed plug-ins."""
-    return list(entry_points())
+    """Every estimator name: vislam's own of velocity drives (table order), installed plug-ins,
+    then vislam's own of raw-IMU drives."""
+    names = list(entry_points())
+    return names + [n for n in INERTIAL_ESTIMATOR_NAMES if n not in names]
+
+
+def drive_kind(seq) -> str:
+    """``"raw-imu"`` for a raw-IMU drive (:class:`ekf.inertial.InertialDrive`), else
+    ``"velocity"``."""
+    from vislam.ekf.inertial import InertialDrive
+
+    return "raw-imu" if isinstance(seq, InertialDrive) else "velocity"
+
+
+def estimator_kind(name) -> str:
+    """The kind of drive estimator ``name`` runs on: vislam's raw-IMU estimators and a user's
+    callable with ``drive_kind = "raw-imu"`` take raw-IMU drives; every other estimator takes
+    velocity drives."""
+    if isinstance(name, str) and name in INERTIAL_ENTRY_POINTS:
+        return "raw-imu"
+    if isinstance(name, str) and name in BUILTIN_ENTRY_POINTS:
+        return "velocity"
+    return getattr(resolve(name), "drive_kind", "velocity")
+
+
+def applicable(estimators, seq) -> list:
+    """The estimators of ``estimators`` that run on ``seq``'s kind of drive, in order."""
+    kind = drive_kind(seq)
+    return [n for n in estimators if estimator_kind(n) == kind]
 
 
 def _valid_names() -> str:
@@ -238,10 +276,10 @@ def resolve(name) -> Callable:
         return name
     if is_user_spec(name):
         return _load(name, True)
-    spec = entry_points().get(name)
+    spec = entry_points().get(name) or INERTIAL_ENTRY_POINTS.get(name)
     if spec is None:
         raise InputError(f"unknown estimator {name!r}; valid names: {_valid_names()}")
-    return _load(spec, name not in BUILTIN_ENTRY_POINTS)
+    return _load(spec, name not in BUILTIN_ENTRY_POINTS and name not in INERTIAL_ENTRY_POINTS)
 
 
 def get_estimator(name) -> Callable:
@@ -252,7 +290,8 @@ def get_estimator(name) -> Callable:
     :class:`UserEstimatorError`; vislam's own raise as they always did."""
     fn = resolve(name)
     label = display_name(name)
-    user = not (isinstance(name, str) and name in BUILTIN_ENTRY_POINTS)
+    user = not (isinstance(name, str) and (name in BUILTIN_ENTRY_POINTS
+                                           or name in INERTIAL_ENTRY_POINTS))
 
     def checked(seq, config, progress=None, initial=None, smoother=None):
         settings = EstimatorSettings(

@@ -140,7 +140,8 @@ def run_jobs(
     executor: str = "local",
     scheduler: str | None = None,
 ) -> dict[tuple[str, str], JobResult | JobFailure]:
-    """Run every estimator on every sequence; returns {(sequence key, estimator): result}.
+    """Run every estimator on every sequence of its kind (velocity or raw-IMU drives:
+    :func:`eval.registry.applicable`); returns {(sequence key, estimator): result}.
 
     The smoother waits for its initialiser EKF on the same sequence (if that EKF is among
     ``estimators`` and ``smoother.init`` is ``"ekf"``) and starts from its estimate.
@@ -158,8 +159,10 @@ def run_jobs(
         (n for n in estimators if n not in waiting),
         key=lambda n: (n != init_name, estimators.index(n)),
     )
+    # each drive runs the estimators of its kind (velocity or raw IMU: registry.applicable)
+    runs = {k: set(registry.applicable(estimators, seq)) for k, seq in sequences.items()}
     results: dict[tuple[str, str], JobResult | JobFailure] = {}
-    total = len(sequences) * len(estimators)
+    total = sum(len(r) for r in runs.values())
     bar = Progress("bench", total=total, enabled=show_progress)
 
     def record(res) -> list[tuple[str, str, Estimate | None]]:
@@ -174,12 +177,13 @@ def run_jobs(
             initial = res.estimate if isinstance(res, JobResult) else None
             if initial is not None and not np.all(np.isfinite(initial.poses)):
                 initial = None  # a diverged EKF: let the smoother initialise itself
-            follow = [(res.sequence, n, initial) for n in estimators if n in waiting]
+            follow = [(res.sequence, n, initial) for n in estimators
+                      if n in waiting and n in runs[res.sequence]]
         return follow
 
     try:
         if jobs <= 1 and executor == "local":
-            queue = [(k, n, None) for k in sequences for n in order]
+            queue = [(k, n, None) for k in sequences for n in order if n in runs[k]]
             while queue:
                 key, name, initial = queue.pop(0)
                 bar.set_description(f"running {display_name(name)} on {key}")
@@ -194,7 +198,8 @@ def run_jobs(
             try:
                 labels: dict = {}  # future -> "estimator on sequence", while it is pending
                 jobs_of: dict = {}  # future -> (sequence key, estimator)
-                queue = collections.deque((k, n, None) for k in sequences for n in order)
+                queue = collections.deque((k, n, None) for k in sequences for n in order
+                                          if n in runs[k])
                 pending: set = set()
 
                 def submit() -> None:

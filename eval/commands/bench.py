@@ -80,9 +80,10 @@ def run(args: argparse.Namespace) -> int:
     )
     from vislam.eval.drives import collect_sequences
     from vislam.eval.executors import check_executor, executor_settings
-    from vislam.eval.registry import DEFAULT_BENCH, estimators_from_flag
+    from vislam.eval.registry import DEFAULT_BENCH, DEFAULT_BENCH_INERTIAL, estimators_from_flag
 
-    estimators = estimators_from_flag(args.estimators, DEFAULT_BENCH)
+    # each drive runs the estimators of its kind (velocity or raw-IMU drives)
+    estimators = estimators_from_flag(args.estimators, DEFAULT_BENCH + DEFAULT_BENCH_INERTIAL)
     config = filter_config_from_args(args)
     smoother = smoother_settings_from_args(args)
     if args.frames is not None and args.frames < 2:
@@ -110,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
                   else args.model,
                   "executor": executor_settings(executor, args.scheduler, jobs)},
         latest_link=latest, smoother=smoother, force=args.force,
-        extra_inputs=(args.config,), align=getattr(args, "align", "se3"),
+        extra_inputs=(args.config,), align=getattr(args, "align", None),
         executor=executor, scheduler=args.scheduler,
     )
     if not args.quiet:

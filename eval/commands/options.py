@@ -211,14 +211,16 @@ def environment_settings() -> dict:
 
 
 def add_align_argument(parser: argparse.ArgumentParser) -> None:
-    """``--align {se3,sim3,yaw,none}`` (eval.metrics.ALIGN_MODES; default se3, dest ``align``):
-    the alignment before every aligned ATE a command reports."""
+    """``--align {se3,sim3,yaw,none}`` (eval.metrics.ALIGN_MODES; dest ``align``, None when not
+    given: se3 for a velocity drive, yaw for a raw-IMU drive): the alignment before every
+    aligned ATE a command reports."""
     parser.add_argument(
-        "--align", choices=ALIGN_MODES, default="se3",
+        "--align", choices=ALIGN_MODES, default=None,
         help="alignment of the estimate onto the reference before the aligned ATE ('ATE al.'): "
-             "se3 rotation and translation (default), sim3 also scale, yaw rotation about "
-             "gravity (world z) and translation, the 4-dof alignment of a gravity-aligned "
-             "visual-inertial estimate, none the raw ATE",
+             "se3 rotation and translation (the default for velocity drives), sim3 also scale, "
+             "yaw rotation about gravity (world z) and translation, the 4-dof alignment of a "
+             "gravity-aligned visual-inertial estimate (the default for raw-IMU drives), none "
+             "the raw ATE",
     )
 
 

@@ -135,7 +135,7 @@ def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path, *, pl
         "landmarks": int(np.count_nonzero(est.has_landmark)),
         "numerical_rejections": int(est.info.get("numerical_rejections", 0)),
         "has_ground_truth": gt is not None,
-        **trajectory_scores(est, gt, align=getattr(args, "align", "se3")),
+        **trajectory_scores(est, gt, align=getattr(args, "align", None) or "se3"),
         "rpe_definition": RPE_DEFINITION,
     }
     settings = {

@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         (bs,) = drives_under_model(args, [plain], config, smoother, model)
         result = score(traj, bs, config=config, smoother=smoother, cov=cov,
                        t_max_diff=args.t_max_diff, t_offset=args.t_offset,
-                       align=getattr(args, "align", "se3"), reference=not args.no_reference,
+                       align=getattr(args, "align", None) or "se3", reference=not args.no_reference,
                        show_progress=not args.quiet, assoc=assoc)
         result["settings"] = {
             **environment_settings(),

@@ -1,0 +1,88 @@
+"""`vislam bench` on raw-IMU drives (issue 37 item 5): each drive runs the estimators of its
+kind, a raw-IMU drive is aligned in yaw and translation, scored against its ground truth in the
+estimate's own gauge, and compared with the raw-IMU smoother."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from vislam.eval.cli import main
+from vislam.eval.imu_sim import simulate_imu
+from vislam.eval.imu_sim_config import ImuSimConfig
+from vislam.eval.imu_sim_files import write_imu_simulation
+from vislam.eval.registry import DEFAULT_BENCH, DEFAULT_BENCH_INERTIAL, applicable, estimator_kind
+
+
+@pytest.fixture(scope="module")
+def drives(tmp_path_factory):
+    """A short simulated raw-IMU room drive and a short velocity drive, in one folder."""
+    from vislam.eval.loader import save_sequence
+    from vislam.eval.simulate import SimConfig, simulate
+
+    folder = tmp_path_factory.mktemp("drives")
+    drive, truth = simulate_imu(ImuSimConfig(n_frames=61, seed=2))
+    write_imu_simulation(folder, drive, truth)
+    save_sequence(folder / "velocity.npz", simulate(SimConfig(n_frames=20, seed=1)).sequence)
+    return folder, drive
+
+
+def test_each_kind_of_drive_runs_its_estimators(drives):
+    _, drive = drives
+    assert estimator_kind("smoother-imu") == "raw-imu" and estimator_kind("ekf-joint") == "velocity"
+    assert applicable(DEFAULT_BENCH + DEFAULT_BENCH_INERTIAL, drive) == list(DEFAULT_BENCH_INERTIAL)
+
+
+def test_bench_a_folder_of_both_kinds(drives, tmp_path, capsys):
+    folder, _ = drives
+    out = tmp_path / "res"
+    rc = main(["bench", str(folder), "-e", "dead-reckoning,dead-reckoning-imu", "--model", "as-given",
+               "--out", str(out), "-q", "--jobs", "1"])
+    assert rc == 0, capsys.readouterr().err
+    results = json.loads((out / "results.json").read_text())
+    assert results["estimators"] == ["dead-reckoning", "dead-reckoning-imu"]
+    by_name = {s["name"]: s for s in results["sequences"]}
+    raw = by_name["imu-room-mono-2"]
+    assert [e["name"] for e in raw["estimators"]] == ["dead-reckoning-imu"]
+    assert [e["name"] for e in by_name["velocity"]["estimators"]] == ["dead-reckoning"]
+    row = raw["estimators"][0]
+    assert row["error"] is None and raw["alignment"] == "yaw"
+    assert by_name["velocity"]["alignment"] == "se3"
+    # dead reckoning from a rest on a noise-consistent drive: a pose NEES of its order
+    assert 0.5 < row["nees_pose_mean"] < 15 and row["ate_aligned_m"] < 0.05
+    assert (out / "imu-room-mono-2" / "dead-reckoning-imu.estimate.npz").is_file()
+
+
+def test_an_estimator_of_the_other_kind_only_is_refused(drives, tmp_path, capsys):
+    folder, _ = drives
+    raw_only = tmp_path / "raw"
+    raw_only.mkdir()
+    for f in folder.glob("imu-room-mono-2*"):
+        (raw_only / f.name).write_bytes(f.read_bytes())
+    (raw_only / "groundtruth").mkdir()
+    src = folder / "groundtruth" / "imu-room-mono-2.csv"
+    (raw_only / "groundtruth" / src.name).write_bytes(src.read_bytes())
+    rc = main(["bench", str(raw_only), "-e", "ekf-joint", "--out", str(tmp_path / "o"), "-q"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "no estimator given runs on these drives" in err and not (tmp_path / "o").exists()
+
+
+def test_frame0_gauge_puts_truth_on_the_estimate_at_frame_0():
+    from scipy.spatial.transform import Rotation
+
+    from vislam.eval.groundtruth import GroundTruth
+    from vislam.eval.inertial_truth import frame0_gauge
+
+    rng = np.random.default_rng(0)
+    poses = np.tile(np.eye(4), (5, 1, 1))
+    poses[:, :3, :3] = Rotation.from_rotvec(rng.normal(0, 0.5, (5, 3))).as_matrix()
+    poses[:, :3, 3] = rng.normal(0, 2, (5, 3))
+    G = np.eye(4)
+    G[:3, :3] = Rotation.from_euler("z", 0.7).as_matrix()
+    G[:3, 3] = [1, -2, 0.5]
+    est0 = G @ poses[0]
+    moved = frame0_gauge(GroundTruth(np.arange(5), poses, "t"), est0)
+    np.testing.assert_allclose(moved.poses, G @ poses, atol=1e-12)
