@@ -39,7 +39,10 @@ def test_registry_names_and_unknown_name():
     with pytest.raises(InputError, match="ekf-joint"):
         get_estimator("kalman")
     assert parse_estimator_list("smoother, dead-reckoning", DEFAULT_BENCH) == ["dead-reckoning", "smoother"]
-    assert parse_estimator_list("all", DEFAULT_BENCH) == list(ESTIMATOR_NAMES)
+    from vislam.eval.registry import INERTIAL_ESTIMATOR_NAMES
+
+    # "all": every estimator of both kinds of drive (each drive runs those of its kind)
+    assert parse_estimator_list("all", DEFAULT_BENCH) == list(ESTIMATOR_NAMES) + list(INERTIAL_ESTIMATOR_NAMES)
     with pytest.raises(InputError, match="bogus"):
         parse_estimator_list("ekf-joint,bogus", DEFAULT_BENCH)
 
