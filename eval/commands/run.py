@@ -78,11 +78,21 @@ def run(args: argparse.Namespace) -> int:
     if args.gt is not None and not args.gt.strip():
         raise InputError("--gt: empty path; give a ground-truth file or leave --gt out")
     model = model_from_args(args)
-    seq = load_sequence(args.file, clean=False)
-    if model is not None:  # the model's extrinsic and bias act on the data
-        seq = model_sequence(seq, model)
-    gt = find_ground_truth(args.file, override=args.gt,
-                           cam_T_imu=None if model is None else model.cam_T_imu)
+    from vislam.eval.inertial_files import is_inertial_file
+
+    if is_inertial_file(args.file):  # a raw-IMU drive: its own estimators, its own truth
+        seq, gt = _raw_imu_drive(args, model)
+    else:
+        from vislam.eval.registry import DEFAULT_BENCH, estimator_kind
+
+        if estimator_kind(args.estimator) == "raw-imu":
+            raise InputError(f"{args.file}: a velocity drive; estimator {args.estimator!r} takes "
+                             f"raw-IMU drives (velocity drives: {', '.join(DEFAULT_BENCH)}, ...)")
+        seq = load_sequence(args.file, clean=False)
+        if model is not None:  # the model's extrinsic and bias act on the data
+            seq = model_sequence(seq, model)
+        gt = find_ground_truth(args.file, override=args.gt,
+                               cam_T_imu=None if model is None else model.cam_T_imu)
     plots = getattr(args, "plots", True)
     landmark_truth = landmark_truth_beside(args.file, seq) if plots else None
     inputs = [args.file, args.config, getattr(gt, "source", None) or args.gt]
@@ -93,6 +103,24 @@ def run(args: argparse.Namespace) -> int:
                                       plots=plots, landmark_truth=landmark_truth)
     print(_summary_line(metrics, args.out))
     return 0
+
+
+def _raw_imu_drive(args, model):
+    """A raw-IMU drive and its ground truth for ``vislam run`` (the estimator must be one of
+    raw-IMU drives; a model file is for velocity drives)."""
+    from vislam.ekf.errors import InputError
+    from vislam.eval.inertial_files import load_inertial_drive
+    from vislam.eval.inertial_truth import find_inertial_truth
+    from vislam.eval.registry import INERTIAL_ESTIMATOR_NAMES, estimator_kind
+
+    if estimator_kind(args.estimator) != "raw-imu":
+        raise InputError(f"{args.file}: a raw-IMU drive; estimator {args.estimator!r} takes velocity "
+                         f"drives (raw-IMU drives: {', '.join(INERTIAL_ESTIMATOR_NAMES)})")
+    if model is not None:
+        raise InputError(f"{args.file}: a raw-IMU drive; a [model] table is for velocity drives")
+    drive = load_inertial_drive(args.file)
+    truth = find_inertial_truth(args.file, drive, args.gt)
+    return drive, None if truth is None else truth.truth
 
 
 def _plot_files(gt) -> tuple[str, ...]:
@@ -116,6 +144,23 @@ def _write_plots(tmp: Path, args, seq, gt, est, landmark_truth) -> list[Path]:
         raise
 
 
+def _align(args, seq) -> str:
+    """``--align``, else se3 for a velocity drive and yaw for a raw-IMU drive."""
+    from vislam.eval.registry import drive_kind
+
+    return getattr(args, "align", None) or ("yaw" if drive_kind(seq) == "raw-imu" else "se3")
+
+
+def _gauge(gt, seq, est):
+    """A raw-IMU drive's truth in the estimate's frame-0 gauge (eval.inertial_truth)."""
+    from vislam.eval.inertial_truth import frame0_gauge
+    from vislam.eval.registry import drive_kind
+
+    if gt is None or drive_kind(seq) != "raw-imu" or not est.n_frames:
+        return gt
+    return frame0_gauge(gt, est.poses[0])
+
+
 def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path, *, plots: bool = True,
                         landmark_truth: np.ndarray | None = None) -> dict:
     from vislam.eval.bench_scores import RPE_DEFINITION, trajectory_scores
@@ -135,7 +180,7 @@ def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path, *, pl
         "landmarks": int(np.count_nonzero(est.has_landmark)),
         "numerical_rejections": int(est.info.get("numerical_rejections", 0)),
         "has_ground_truth": gt is not None,
-        **trajectory_scores(est, gt, align=getattr(args, "align", None) or "se3"),
+        **trajectory_scores(est, _gauge(gt, seq, est), align=_align(args, seq)),
         "rpe_definition": RPE_DEFINITION,
     }
     settings = {
