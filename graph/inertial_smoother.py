@@ -74,8 +74,13 @@ class InertialSmootherSettings:
     """Settings of the raw-IMU smoother (module docstring); the defaults are the same for every
     drive."""
 
-    #: Pixel noise of a track observation (px, each axis) and the Huber threshold in sigmas.
-    pixel_sigma: float = 1.0
+    #: Pixel noise of a track observation (px, each axis), None: identified from the drive's
+    #: own residuals (:func:`identify_pixel_sigma`), starting from ``pixel_sigma_start``; and
+    #: the Huber threshold in sigmas.
+    pixel_sigma: float | None = None
+    pixel_sigma_start: float = 1.0
+    pixel_sigma_iterations: int = 3
+    pixel_sigma_rtol: float = 0.05
     huber_k: float = 1.345
     #: Every IMU noise figure of the drive times this (1: the data sheet's figures as they are).
     imu_noise_inflation: float = 1.0
@@ -148,6 +153,7 @@ class InertialProblem:
     pixel_noise: gtsam.noiseModel.Base
     robust_noise: gtsam.noiseModel.Base
     rest_frames: np.ndarray
+    pixel_sigma: float  # the sigma of pixel_noise
 
     @property
     def n_frames(self) -> int:
@@ -221,12 +227,33 @@ def build_problem(drive: InertialDrive, settings: InertialSmootherSettings = Ine
     pims = [preintegrate(drive.imu, float(t[k - 1]), float(t[k]), params, bias0)
             for k in range(1, drive.n_frames)]
     K = c.K
-    pixel = gtsam.noiseModel.Isotropic.Sigma(2, settings.pixel_sigma)
-    robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(settings.huber_k), pixel)
+    sigma = settings.pixel_sigma if settings.pixel_sigma is not None else settings.pixel_sigma_start
+    pixel, robust = pixel_noise_models(sigma, settings.huber_k)
     return InertialProblem(
         drive, settings, rest, world_R_imu0, bias0, pims,
         gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2]),
-        gtsam.Pose3(c.imu_T_cam), pixel, robust, np.flatnonzero(t <= rest.t_end))
+        gtsam.Pose3(c.imu_T_cam), pixel, robust, np.flatnonzero(t <= rest.t_end), float(sigma))
+
+
+def pixel_noise_models(sigma: float, huber_k: float) -> tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]:
+    """The Gaussian pixel noise (``sigma`` px each axis) and the same under Huber at ``huber_k`` sigmas."""
+    pixel = gtsam.noiseModel.Isotropic.Sigma(2, float(sigma))
+    return pixel, gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(huber_k), pixel)
+
+
+def identify_pixel_sigma(residuals_px: np.ndarray, n_landmarks: int, n_frames: int) -> float:
+    """The pixel sigma (each axis) the residuals of a solve call for: ``sigma^2 = sum |r_i|^2 /
+    (2 N - 3 M - 6 T)`` over the ``N`` observations kept by the outlier gate (``|r_i|`` the
+    reprojection error in px; observations beyond ``outlier_px`` are outliers and leave the
+    model, here as in the solve), ``M`` landmarks and ``T`` frames: the residual degrees of
+    freedom of the tracks, counting every landmark's 3 and every pose's 6 as determined by them
+    (the IMU determines part of the poses, so this rule leans towards a larger sigma)."""
+    r = np.asarray(residuals_px, dtype=float)
+    dof = 2 * r.size - 3 * int(n_landmarks) - 6 * int(n_frames)
+    if dof <= 0:
+        raise EstimationError(f"{ESTIMATOR}: {r.size} observations cannot identify the pixel noise of "
+                              f"{n_landmarks} landmarks and {n_frames} frames; give pixel_sigma")
+    return float(np.sqrt(np.sum(r ** 2) / dof))
 
 
 @dataclass
@@ -240,6 +267,7 @@ class Solution:
     graph: gtsam.NonlinearFactorGraph
     n_prior: int  # factors before the projection factors
     timing: dict = field(default_factory=dict)
+    pixel_sigma: float | None = None  # the pixel sigma of the solve (None: the problem's)
 
 
 def _camera_pose(values: gtsam.Values, frame: int, body_P_sensor: gtsam.Pose3) -> gtsam.Pose3:
@@ -466,8 +494,19 @@ def batch_solve(problem: InertialProblem, initial: Solution | None = None) -> So
         del anchors[j]
     graph = _graph(problem, rows, anchors)
     values = _lm(problem, graph, values, "optimising after outlier rejection")
+    # The pixel sigma identified from the residuals (an EM fixed point: solve, identify, solve
+    # again under the identified sigma while it moves by more than pixel_sigma_rtol).
+    for _ in range(s.pixel_sigma_iterations if s.pixel_sigma is None else 0):
+        sigma = identify_pixel_sigma(_reprojection_errors(problem, values, rows), kept_tracks.size,
+                                     problem.n_frames)
+        if abs(sigma / problem.pixel_sigma - 1.0) <= s.pixel_sigma_rtol:
+            break
+        pixel, robust = pixel_noise_models(sigma, s.huber_k)
+        problem = dataclasses.replace(problem, pixel_noise=pixel, robust_noise=robust, pixel_sigma=sigma)
+        graph = _graph(problem, rows, anchors)
+        values = _lm(problem, graph, values, "optimising under the identified pixel sigma")
     timing["batch_s"] = time.perf_counter() - start
-    return Solution(values, kept_tracks, rows, anchors, graph, 0, timing)
+    return Solution(values, kept_tracks, rows, anchors, graph, 0, timing, problem.pixel_sigma)
 
 
 def _states_only(values: gtsam.Values, n_frames: int) -> gtsam.Values:
@@ -481,6 +520,10 @@ def _states_only(values: gtsam.Values, n_frames: int) -> gtsam.Values:
 
 def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATOR) -> InertialSmootherResult:
     """The solution in vislam's convention, with marginal covariances (module docstring)."""
+    if solution.pixel_sigma is not None and solution.pixel_sigma != problem.pixel_sigma:
+        pixel, robust = pixel_noise_models(solution.pixel_sigma, problem.settings.huber_k)
+        problem = dataclasses.replace(problem, pixel_noise=pixel, robust_noise=robust,
+                                      pixel_sigma=solution.pixel_sigma)
     drive, s = problem.drive, problem.settings
     T, M = problem.n_frames, drive.n_tracks
     values = solution.values
@@ -524,7 +567,8 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
         "n_tracks_not_triangulated": int(np.sum(counts >= 2) - solution.tracks.size),
         "n_observations_used": int(solution.rows.size),
         "imu_noise_inflation": s.imu_noise_inflation,
-        "pixel_sigma": s.pixel_sigma,
+        "pixel_sigma": problem.pixel_sigma,
+        "pixel_sigma_identified": s.pixel_sigma is None,
         "marginals_computed": bool(s.compute_marginals),
         "timing": timing,
     }
