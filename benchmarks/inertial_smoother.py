@@ -85,6 +85,7 @@ def main() -> None:
           f"{ate_rmse(est.poses, truth):.4f} m")
     print(f"incremental vs batch: largest position gap "
           f"{np.linalg.norm(inc_poses[:, :3, 3] - est.poses[:, :3, 3], axis=1).max():.4f} m")
+    print(f"IMU factors: mean chi2 {result.info.get('imu_chi2_mean', float('nan')):.2f} + leverage {result.info.get('imu_leverage_mean', float('nan')):.2f} of 15: EM scale on the IMU covariance {result.info.get('imu_noise_em_scale', float('nan')):.3f}")
     print(f"pixel sigma {result.info['pixel_sigma']:.3f} px "
           f"({'identified from the residuals' if result.info['pixel_sigma_identified'] else 'given'})")
     if not args.no_marginals:

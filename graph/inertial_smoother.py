@@ -59,7 +59,7 @@ from vislam.ekf.conventions import gtsam_cov_to_estimate
 from vislam.ekf.inertial import InertialDrive
 from vislam.graph.inertial_conventions import from_gtsam_bias, gtsam_bias_cov_to_vislam
 from vislam.graph.inertial_factors import preintegrate, preintegration_params, triangulate_track
-from vislam.graph.inertial_marginals import frame_and_landmark_covariances
+from vislam.graph.inertial_marginals import frame_marginals, imu_factor_statistics
 from vislam.graph.inertial_init import RestDetector, RestInterval, detect_rest, gravity_aligned_rotation
 from vislam.graph.pose_conversions import estimation_error
 
@@ -542,7 +542,9 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
     if s.compute_marginals:
         graph = _graph(problem, solution.rows, solution.anchors, robust=False)
         try:
-            P, Pl = frame_and_landmark_covariances(graph, values, T, solution.tracks)
+            m = frame_marginals(graph, values, T, solution.tracks)
+            P, Pl = m.P, m.Pl
+            chi2, lev = imu_factor_statistics(graph, m, problem.priors().size(), T)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             raise estimation_error(exc, "computing marginals", estimator=ESTIMATOR) from None
         for k in range(T):  # one joint block per frame: [X (6), V (3), B (6)]
@@ -552,6 +554,10 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
         for i, j in enumerate(solution.tracks.tolist()):
             est.landmark_cov[j] = Pl[i]
     timing = dict(solution.timing, marginals_s=time.perf_counter() - start)
+    imu_stats = {}
+    if s.compute_marginals:
+        imu_stats = {"imu_chi2_mean": float(chi2.mean()), "imu_leverage_mean": float(lev.mean()),
+                     "imu_noise_em_scale": float(s.imu_noise_inflation ** 2 * np.sum(chi2 + lev) / (15 * chi2.size))}
     obs = drive.obs
     frames = _frames_of(obs, solution.rows)
     est.n_updates = np.bincount(frames, minlength=T).astype(np.int64)
@@ -571,6 +577,7 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
         "pixel_sigma_identified": s.pixel_sigma is None,
         "marginals_computed": bool(s.compute_marginals),
         "timing": timing,
+        **imu_stats,
     }
     est.info.update(info)
     return InertialSmootherResult(est, InertialStates(velocity, velocity_cov, bias, bias_cov),

@@ -297,18 +297,22 @@ def test_one_pass_marginals_equal_gtsam_marginals():
     import gtsam
     from gtsam.symbol_shorthand import B, L, V, X
 
-    from vislam.graph.inertial_marginals import frame_and_landmark_covariances
+    from vislam.graph.inertial_marginals import frame_marginals
     from vislam.graph.inertial_smoother import _graph, batch_solve, incremental_solve
 
     drive, _ = synthetic_drive(seed=1, duration=2.0, n_lm=60)
     problem = build_problem(drive, InertialSmootherSettings(pixel_sigma=0.5))
     sol = batch_solve(problem, incremental_solve(problem))
     graph = _graph(problem, sol.rows, sol.anchors, robust=False)
-    P, Pl = frame_and_landmark_covariances(graph, sol.values, drive.n_frames, sol.tracks)
+    fm = frame_marginals(graph, sol.values, drive.n_frames, sol.tracks)
+    P, Pl = fm.P, fm.Pl
     m = gtsam.Marginals(graph, sol.values)
-    for k in range(0, drive.n_frames, 7):
-        ref = m.jointMarginalCovariance(gtsam.KeyVector([X(k), V(k), B(k)])).fullMatrix()
-        np.testing.assert_allclose(P[k], ref, rtol=1e-6, atol=1e-12 * np.abs(ref).max())
+    for k in range(0, drive.n_frames - 1, 7):
+        keys = gtsam.KeyVector([X(k), V(k), B(k), X(k + 1), V(k + 1), B(k + 1)])
+        ref = m.jointMarginalCovariance(keys).fullMatrix()
+        tol = 1e-12 * np.abs(ref).max()
+        np.testing.assert_allclose(P[k], ref[:15, :15], rtol=1e-6, atol=tol)
+        np.testing.assert_allclose(fm.P_next[k], ref[:15, 15:], rtol=1e-6, atol=tol)
     for i in range(0, sol.tracks.size, 5):
         ref = m.marginalCovariance(L(int(sol.tracks[i])))
         np.testing.assert_allclose(Pl[i], ref, rtol=1e-6, atol=1e-12)
@@ -320,6 +324,9 @@ def test_pixel_sigma_identified_from_the_residuals(synthetic_result):
     _, _, result = synthetic_result
     assert result.info["pixel_sigma_identified"]
     assert 0.45 < result.info["pixel_sigma"] < 0.56, result.info["pixel_sigma"]
+    # the IMU's white noise is simulated at its data-sheet density, its biases constant:
+    # EM's scale on the IMU covariance comes out near 1, below it (no random walk)
+    assert 0.3 < result.info["imu_noise_em_scale"] < 1.3, result.info
 
 
 def test_identify_pixel_sigma_counts_the_parameters():
