@@ -26,16 +26,25 @@ unknown accelerometer bias); the velocity zero with ``rest_velocity_sigma`` at e
 the rest; the bias at ``(accel 0, gyro = rest mean)`` with ``accel_bias_sigma`` and
 ``gyro_bias_sigma``.
 
-**Solving.** :func:`incremental_solve` runs iSAM2 frame by frame: each frame's state is predicted
-from the previous estimate by the preintegrated IMU, a track becomes a landmark once it has
-``min_track_frames`` observations that triangulate, with all of them, and later observations are
-added as they come. :func:`batch_solve` starts from the incremental estimate, triangulates every
-track again from that trajectory (also those the incremental pass never took), solves with LM,
-drops observations whose reprojection error exceeds ``outlier_px`` (and tracks left with fewer
-than two), and solves again. Marginal covariances come from ``gtsam.Marginals`` of the final graph
-with the Gaussian pixel noise in place of the kernel (the kernel decides which observations are
+**Solving.** :func:`incremental_solve` runs iSAM2 (GTSAM's default relinearisation: threshold
+0.1, checked every 10 updates) with one update per ``isam_frames_per_update`` frames: each
+frame's state is predicted from the last estimate by the preintegrated IMU, a track becomes a
+landmark once it has ``min_track_frames`` observations that triangulate, with all of them, and
+later observations are added as they come; estimates are looked up key by key (a full
+``calculateEstimate`` per frame cost more than the updates). :func:`batch_solve` starts from the
+incremental estimate, triangulates every track again from that trajectory (also those the
+incremental pass never took), solves with LM, drops observations whose reprojection error
+exceeds ``outlier_px`` (and tracks left with fewer than two), and solves again. **The pixel
+sigma** is then identified from the drive's own residuals unless given
+(:func:`identify_pixel_sigma`: ``sigma^2 = sum |r|^2 / (2N - 3M - 6T)`` over the observations
+the gate kept, and solved again under it until it moves by less than 5 %). Marginal
+covariances come in one pass (:mod:`graph.inertial_marginals`: the frame states' block-
+tridiagonal information with the landmarks as a dense border) of the final graph with the
+Gaussian pixel noise in place of the kernel (the kernel decides which observations are
 outliers, its down-weighting of inliers is not information they lack), converted to vislam's
-convention (:mod:`graph.inertial_conventions`).
+convention (:mod:`graph.inertial_conventions`). From the same pass, EM's check of the IMU
+noise: ``info["imu_noise_em_scale"] = sum(chi2 + leverage) / (15 (T - 1))`` over the IMU
+factors (the scale EM would put on the data sheet's IMU covariance; reported, not applied).
 
 **Output**: :class:`InertialSmootherResult`: the :class:`ekf.estimate.Estimate` (poses
 ``world_T_imu`` at the camera frames, pose covariances translation first in the right
