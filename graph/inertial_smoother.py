@@ -565,8 +565,9 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
     timing = dict(solution.timing, marginals_s=time.perf_counter() - start)
     imu_stats = {}
     if s.compute_marginals:
+        em_scale = s.imu_noise_inflation ** 2 * np.sum(chi2 + lev) / (15 * chi2.size)
         imu_stats = {"imu_chi2_mean": float(chi2.mean()), "imu_leverage_mean": float(lev.mean()),
-                     "imu_noise_em_scale": float(s.imu_noise_inflation ** 2 * np.sum(chi2 + lev) / (15 * chi2.size))}
+                     "imu_noise_em_scale": float(em_scale)}
     obs = drive.obs
     frames = _frames_of(obs, solution.rows)
     est.n_updates = np.bincount(frames, minlength=T).astype(np.int64)
@@ -596,7 +597,8 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
 def smooth(drive: InertialDrive, settings: InertialSmootherSettings = InertialSmootherSettings(),
            incremental_only: bool = False) -> InertialSmootherResult:
     """The whole pipeline: build, incremental solve, batch solve (unless ``incremental_only``),
-    marginals."""
+    marginals. The pixel sigma is identified in the batch solve only; ``incremental_only`` keeps
+    ``pixel_sigma`` (or ``pixel_sigma_start`` when None)."""
     start = time.perf_counter()
     problem = build_problem(drive, settings)
     build_s = time.perf_counter() - start
