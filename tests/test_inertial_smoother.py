@@ -337,3 +337,20 @@ def test_identify_pixel_sigma_counts_the_parameters():
     assert identify_pixel_sigma(r, 10, 5) == pytest.approx(np.sqrt(200 / (200 - 30 - 30)))
     with pytest.raises(EstimationError, match="cannot identify"):
         identify_pixel_sigma(r, 50, 10)
+
+
+def test_in_estimate_gauge_matches_yaw_and_position_at_frame_0():
+    from vislam.graph.inertial_init import in_estimate_gauge
+
+    rng = np.random.default_rng(3)
+    truth = np.stack([se3_exp(rng.normal(size=6)) for _ in range(5)])
+    move = np.eye(4)
+    move[:3, :3] = Rotation.from_rotvec([0, 0, 0.7]).as_matrix()
+    move[:3, 3] = [1.0, -2.0, 0.5]
+    est = move @ truth
+    np.testing.assert_allclose(in_estimate_gauge(truth, est), est, atol=1e-9)
+    # a tilt difference at frame 0 stays: only yaw and position are matched
+    tilted = est.copy()
+    tilted[0, :3, :3] = Rotation.from_rotvec([0.01, 0, 0]).as_matrix() @ est[0, :3, :3]
+    w = Rotation.from_matrix(in_estimate_gauge(truth, tilted)[0, :3, :3] @ tilted[0, :3, :3].T).as_rotvec()
+    assert abs(w[2]) < 1e-6 and abs(w[0]) == pytest.approx(0.01, rel=1e-3)
