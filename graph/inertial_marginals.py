@@ -29,6 +29,8 @@ result equals ``gtsam.Marginals``'s ``jointMarginalCovariance([X(k), V(k), B(k)]
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import gtsam
 import numpy as np
 import scipy.linalg
@@ -45,6 +47,17 @@ def _symbol(key: int) -> tuple[str, int]:
     return chr(s.chr()), int(s.index())
 
 
+@dataclass
+class FrameMarginals:
+    """The one-pass marginals and the linear system they come from."""
+
+    P: np.ndarray  # (T, 15, 15) each frame's [X, V, B] block
+    P_next: np.ndarray  # (T - 1, 15, 15) the cross block of frames k and k + 1
+    Pl: np.ndarray  # (len(tracks), 3, 3)
+    A: sp.csr_matrix  # whitened Jacobian, columns frame-major then landmarks
+    b: np.ndarray  # minus the whitened error
+
+
 def frame_and_landmark_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                                    n_frames: int, tracks: np.ndarray
                                    ) -> tuple[np.ndarray, np.ndarray]:
@@ -52,6 +65,38 @@ def frame_and_landmark_covariances(graph: gtsam.NonlinearFactorGraph, values: gt
     ``[X(k), V(k), B(k)]`` in GTSAM's tangents and each landmark's (in ``tracks``' order),
     from ``graph`` linearised at ``values`` (module docstring). Raises RuntimeError (GTSAM's or
     numpy's LinAlgError) when the information is not positive definite."""
+    m = frame_marginals(graph, values, n_frames, tracks)
+    return m.P, m.Pl
+
+
+def imu_factor_statistics(graph: gtsam.NonlinearFactorGraph, marginals: FrameMarginals,
+                          first_imu_factor: int, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(chi2, leverage)`` (T - 1,) of the IMU factors ``graph.at(first_imu_factor + k - 1)``
+    (interval ``[k - 1, k]``): the squared whitened residual at the solution and
+    ``tr(A_f Sigma_f A_f^T)``, the part of the factor's 15 dimensions the estimate's own
+    uncertainty accounts for. EM's update of one scale ``c`` on every IMU factor's covariance
+    is ``c' = c * sum(chi2 + leverage) / (15 (T - 1))``: 1 when the data sheet's noise
+    explains the residuals."""
+    dims = np.array([graph.at(i).dim() for i in range(graph.size())], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(dims)])
+    chi2 = np.empty(n_frames - 1)
+    lev = np.empty(n_frames - 1)
+    A = marginals.A
+    for k in range(1, n_frames):
+        i = first_imu_factor + k - 1
+        r0, r1 = int(offsets[i]), int(offsets[i + 1])
+        Af = A[r0:r1, FRAME_DIM * (k - 1):FRAME_DIM * (k + 1)].toarray()
+        Sf = np.block([[marginals.P[k - 1], marginals.P_next[k - 1]],
+                       [marginals.P_next[k - 1].T, marginals.P[k]]])
+        chi2[k - 1] = float(marginals.b[r0:r1] @ marginals.b[r0:r1])
+        lev[k - 1] = float(np.einsum("ij,jk,ik->", Af, Sf, Af))
+    return chi2, lev
+
+
+def frame_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
+                    tracks: np.ndarray) -> FrameMarginals:
+    """:func:`frame_and_landmark_covariances` with the cross blocks of consecutive frames and
+    the whitened system."""
     linear = graph.linearize(values)
     keys = sorted(linear.keyVector())
     # GTSAM's sparse Jacobian: columns by sorted key, 1-based, the last column the rhs.
@@ -80,7 +125,10 @@ def frame_and_landmark_covariances(graph: gtsam.NonlinearFactorGraph, values: gt
     rows = rows.astype(np.int64) - 1
     cols = cols.astype(np.int64) - 1
     keep = cols < n
-    A = sp.csr_matrix((vals[keep], (rows[keep], dest[cols[keep]])), shape=(int(rows.max()) + 1, n))
+    n_rows = int(rows.max()) + 1
+    A = sp.csr_matrix((vals[keep], (rows[keep], dest[cols[keep]])), shape=(n_rows, n))
+    b = np.zeros(n_rows)
+    b[rows[~keep]] = vals[~keep]
     H = (A.T @ A).tocsc()
     S = H[:n_f, :n_f].tocsc()
     C = H[:n_f, n_f:].toarray()
@@ -92,21 +140,22 @@ def frame_and_landmark_covariances(graph: gtsam.NonlinearFactorGraph, values: gt
     except np.linalg.LinAlgError as exc:
         raise RuntimeError(f"the landmarks' marginal information is not positive definite: {exc}") from None
     Y = scipy.linalg.solve_triangular(Lz, Xs.T, lower=True).T if Z.size else np.zeros((n_f, 0))
-    P = _tridiagonal_inverse_blocks(S, n_frames)
+    P, P_next = _tridiagonal_inverse_blocks(S, n_frames)
     Yk = Y.reshape(n_frames, FRAME_DIM, -1)
     P += np.einsum("kia,kja->kij", Yk, Yk)
+    P_next += np.einsum("kia,kja->kij", Yk[:-1], Yk[1:])
     if Z.size:
         Zinv = scipy.linalg.cho_solve((Lz, True), np.eye(Z.shape[0]))
         idx = np.arange(len(track_slot))[:, None] * 3 + np.arange(3)
         Pl = Zinv[idx[:, :, None], idx[:, None, :]]
     else:
         Pl = np.zeros((0, 3, 3))
-    return P, Pl
+    return FrameMarginals(P, P_next, Pl, A, b)
 
 
-def _tridiagonal_inverse_blocks(S: sp.csc_matrix, n_frames: int) -> np.ndarray:
+def _tridiagonal_inverse_blocks(S: sp.csc_matrix, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
     """The diagonal 15 x 15 blocks of ``S^-1`` for a block-tridiagonal positive definite ``S``
-    (module docstring's recursion)."""
+    (module docstring's recursion) and the blocks ``(k, k + 1)``: ``-G_k Sigma_{k+1}``."""
     m = FRAME_DIM
     S = S.tocsr()
     diag = np.empty((n_frames, m, m))
@@ -125,7 +174,9 @@ def _tridiagonal_inverse_blocks(S: sp.csc_matrix, n_frames: int) -> np.ndarray:
         Dinv[k] = scipy.linalg.cho_solve(c, np.eye(m))
     out = np.empty_like(diag)
     out[-1] = Dinv[-1]
+    cross = np.empty_like(upper)
     for k in range(n_frames - 2, -1, -1):
         G = Dinv[k] @ upper[k]
+        cross[k] = -G @ out[k + 1]
         out[k] = Dinv[k] + G @ out[k + 1] @ G.T
-    return 0.5 * (out + out.transpose(0, 2, 1))
+    return 0.5 * (out + out.transpose(0, 2, 1)), cross

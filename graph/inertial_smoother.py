@@ -26,16 +26,25 @@ unknown accelerometer bias); the velocity zero with ``rest_velocity_sigma`` at e
 the rest; the bias at ``(accel 0, gyro = rest mean)`` with ``accel_bias_sigma`` and
 ``gyro_bias_sigma``.
 
-**Solving.** :func:`incremental_solve` runs iSAM2 frame by frame: each frame's state is predicted
-from the previous estimate by the preintegrated IMU, a track becomes a landmark once it has
-``min_track_frames`` observations that triangulate, with all of them, and later observations are
-added as they come. :func:`batch_solve` starts from the incremental estimate, triangulates every
-track again from that trajectory (also those the incremental pass never took), solves with LM,
-drops observations whose reprojection error exceeds ``outlier_px`` (and tracks left with fewer
-than two), and solves again. Marginal covariances come from ``gtsam.Marginals`` of the final graph
-with the Gaussian pixel noise in place of the kernel (the kernel decides which observations are
+**Solving.** :func:`incremental_solve` runs iSAM2 (GTSAM's default relinearisation: threshold
+0.1, checked every 10 updates) with one update per ``isam_frames_per_update`` frames: each
+frame's state is predicted from the last estimate by the preintegrated IMU, a track becomes a
+landmark once it has ``min_track_frames`` observations that triangulate, with all of them, and
+later observations are added as they come; estimates are looked up key by key (a full
+``calculateEstimate`` per frame cost more than the updates). :func:`batch_solve` starts from the
+incremental estimate, triangulates every track again from that trajectory (also those the
+incremental pass never took), solves with LM, drops observations whose reprojection error
+exceeds ``outlier_px`` (and tracks left with fewer than two), and solves again. **The pixel
+sigma** is then identified from the drive's own residuals unless given
+(:func:`identify_pixel_sigma`: ``sigma^2 = sum |r|^2 / (2N - 3M - 6T)`` over the observations
+the gate kept, and solved again under it until it moves by less than 5 %). Marginal
+covariances come in one pass (:mod:`graph.inertial_marginals`: the frame states' block-
+tridiagonal information with the landmarks as a dense border) of the final graph with the
+Gaussian pixel noise in place of the kernel (the kernel decides which observations are
 outliers, its down-weighting of inliers is not information they lack), converted to vislam's
-convention (:mod:`graph.inertial_conventions`).
+convention (:mod:`graph.inertial_conventions`). From the same pass, EM's check of the IMU
+noise: ``info["imu_noise_em_scale"] = sum(chi2 + leverage) / (15 (T - 1))`` over the IMU
+factors (the scale EM would put on the data sheet's IMU covariance; reported, not applied).
 
 **Output**: :class:`InertialSmootherResult`: the :class:`ekf.estimate.Estimate` (poses
 ``world_T_imu`` at the camera frames, pose covariances translation first in the right
@@ -59,7 +68,7 @@ from vislam.ekf.conventions import gtsam_cov_to_estimate
 from vislam.ekf.inertial import InertialDrive
 from vislam.graph.inertial_conventions import from_gtsam_bias, gtsam_bias_cov_to_vislam
 from vislam.graph.inertial_factors import preintegrate, preintegration_params, triangulate_track
-from vislam.graph.inertial_marginals import frame_and_landmark_covariances
+from vislam.graph.inertial_marginals import frame_marginals, imu_factor_statistics
 from vislam.graph.inertial_init import RestDetector, RestInterval, detect_rest, gravity_aligned_rotation
 from vislam.graph.pose_conversions import estimation_error
 
@@ -74,8 +83,13 @@ class InertialSmootherSettings:
     """Settings of the raw-IMU smoother (module docstring); the defaults are the same for every
     drive."""
 
-    #: Pixel noise of a track observation (px, each axis) and the Huber threshold in sigmas.
-    pixel_sigma: float = 1.0
+    #: Pixel noise of a track observation (px, each axis), None: identified from the drive's
+    #: own residuals (:func:`identify_pixel_sigma`), starting from ``pixel_sigma_start``; and
+    #: the Huber threshold in sigmas.
+    pixel_sigma: float | None = None
+    pixel_sigma_start: float = 1.0
+    pixel_sigma_iterations: int = 3
+    pixel_sigma_rtol: float = 0.05
     huber_k: float = 1.345
     #: Every IMU noise figure of the drive times this (1: the data sheet's figures as they are).
     imu_noise_inflation: float = 1.0
@@ -148,6 +162,7 @@ class InertialProblem:
     pixel_noise: gtsam.noiseModel.Base
     robust_noise: gtsam.noiseModel.Base
     rest_frames: np.ndarray
+    pixel_sigma: float  # the sigma of pixel_noise
 
     @property
     def n_frames(self) -> int:
@@ -221,12 +236,33 @@ def build_problem(drive: InertialDrive, settings: InertialSmootherSettings = Ine
     pims = [preintegrate(drive.imu, float(t[k - 1]), float(t[k]), params, bias0)
             for k in range(1, drive.n_frames)]
     K = c.K
-    pixel = gtsam.noiseModel.Isotropic.Sigma(2, settings.pixel_sigma)
-    robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(settings.huber_k), pixel)
+    sigma = settings.pixel_sigma if settings.pixel_sigma is not None else settings.pixel_sigma_start
+    pixel, robust = pixel_noise_models(sigma, settings.huber_k)
     return InertialProblem(
         drive, settings, rest, world_R_imu0, bias0, pims,
         gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2]),
-        gtsam.Pose3(c.imu_T_cam), pixel, robust, np.flatnonzero(t <= rest.t_end))
+        gtsam.Pose3(c.imu_T_cam), pixel, robust, np.flatnonzero(t <= rest.t_end), float(sigma))
+
+
+def pixel_noise_models(sigma: float, huber_k: float) -> tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]:
+    """The Gaussian pixel noise (``sigma`` px each axis) and the same under Huber at ``huber_k`` sigmas."""
+    pixel = gtsam.noiseModel.Isotropic.Sigma(2, float(sigma))
+    return pixel, gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(huber_k), pixel)
+
+
+def identify_pixel_sigma(residuals_px: np.ndarray, n_landmarks: int, n_frames: int) -> float:
+    """The pixel sigma (each axis) the residuals of a solve call for: ``sigma^2 = sum |r_i|^2 /
+    (2 N - 3 M - 6 T)`` over the ``N`` observations kept by the outlier gate (``|r_i|`` the
+    reprojection error in px; observations beyond ``outlier_px`` are outliers and leave the
+    model, here as in the solve), ``M`` landmarks and ``T`` frames: the residual degrees of
+    freedom of the tracks, counting every landmark's 3 and every pose's 6 as determined by them
+    (the IMU determines part of the poses, so this rule leans towards a larger sigma)."""
+    r = np.asarray(residuals_px, dtype=float)
+    dof = 2 * r.size - 3 * int(n_landmarks) - 6 * int(n_frames)
+    if dof <= 0:
+        raise EstimationError(f"{ESTIMATOR}: {r.size} observations cannot identify the pixel noise of "
+                              f"{n_landmarks} landmarks and {n_frames} frames; give pixel_sigma")
+    return float(np.sqrt(np.sum(r ** 2) / dof))
 
 
 @dataclass
@@ -240,6 +276,7 @@ class Solution:
     graph: gtsam.NonlinearFactorGraph
     n_prior: int  # factors before the projection factors
     timing: dict = field(default_factory=dict)
+    pixel_sigma: float | None = None  # the pixel sigma of the solve (None: the problem's)
 
 
 def _camera_pose(values: gtsam.Values, frame: int, body_P_sensor: gtsam.Pose3) -> gtsam.Pose3:
@@ -466,8 +503,19 @@ def batch_solve(problem: InertialProblem, initial: Solution | None = None) -> So
         del anchors[j]
     graph = _graph(problem, rows, anchors)
     values = _lm(problem, graph, values, "optimising after outlier rejection")
+    # The pixel sigma identified from the residuals (an EM fixed point: solve, identify, solve
+    # again under the identified sigma while it moves by more than pixel_sigma_rtol).
+    for _ in range(s.pixel_sigma_iterations if s.pixel_sigma is None else 0):
+        sigma = identify_pixel_sigma(_reprojection_errors(problem, values, rows), kept_tracks.size,
+                                     problem.n_frames)
+        if abs(sigma / problem.pixel_sigma - 1.0) <= s.pixel_sigma_rtol:
+            break
+        pixel, robust = pixel_noise_models(sigma, s.huber_k)
+        problem = dataclasses.replace(problem, pixel_noise=pixel, robust_noise=robust, pixel_sigma=sigma)
+        graph = _graph(problem, rows, anchors)
+        values = _lm(problem, graph, values, "optimising under the identified pixel sigma")
     timing["batch_s"] = time.perf_counter() - start
-    return Solution(values, kept_tracks, rows, anchors, graph, 0, timing)
+    return Solution(values, kept_tracks, rows, anchors, graph, 0, timing, problem.pixel_sigma)
 
 
 def _states_only(values: gtsam.Values, n_frames: int) -> gtsam.Values:
@@ -481,6 +529,10 @@ def _states_only(values: gtsam.Values, n_frames: int) -> gtsam.Values:
 
 def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATOR) -> InertialSmootherResult:
     """The solution in vislam's convention, with marginal covariances (module docstring)."""
+    if solution.pixel_sigma is not None and solution.pixel_sigma != problem.pixel_sigma:
+        pixel, robust = pixel_noise_models(solution.pixel_sigma, problem.settings.huber_k)
+        problem = dataclasses.replace(problem, pixel_noise=pixel, robust_noise=robust,
+                                      pixel_sigma=solution.pixel_sigma)
     drive, s = problem.drive, problem.settings
     T, M = problem.n_frames, drive.n_tracks
     values = solution.values
@@ -499,7 +551,9 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
     if s.compute_marginals:
         graph = _graph(problem, solution.rows, solution.anchors, robust=False)
         try:
-            P, Pl = frame_and_landmark_covariances(graph, values, T, solution.tracks)
+            m = frame_marginals(graph, values, T, solution.tracks)
+            P, Pl = m.P, m.Pl
+            chi2, lev = imu_factor_statistics(graph, m, problem.priors().size(), T)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             raise estimation_error(exc, "computing marginals", estimator=ESTIMATOR) from None
         for k in range(T):  # one joint block per frame: [X (6), V (3), B (6)]
@@ -509,6 +563,11 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
         for i, j in enumerate(solution.tracks.tolist()):
             est.landmark_cov[j] = Pl[i]
     timing = dict(solution.timing, marginals_s=time.perf_counter() - start)
+    imu_stats = {}
+    if s.compute_marginals:
+        em_scale = s.imu_noise_inflation ** 2 * np.sum(chi2 + lev) / (15 * chi2.size)
+        imu_stats = {"imu_chi2_mean": float(chi2.mean()), "imu_leverage_mean": float(lev.mean()),
+                     "imu_noise_em_scale": float(em_scale)}
     obs = drive.obs
     frames = _frames_of(obs, solution.rows)
     est.n_updates = np.bincount(frames, minlength=T).astype(np.int64)
@@ -524,9 +583,11 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
         "n_tracks_not_triangulated": int(np.sum(counts >= 2) - solution.tracks.size),
         "n_observations_used": int(solution.rows.size),
         "imu_noise_inflation": s.imu_noise_inflation,
-        "pixel_sigma": s.pixel_sigma,
+        "pixel_sigma": problem.pixel_sigma,
+        "pixel_sigma_identified": s.pixel_sigma is None,
         "marginals_computed": bool(s.compute_marginals),
         "timing": timing,
+        **imu_stats,
     }
     est.info.update(info)
     return InertialSmootherResult(est, InertialStates(velocity, velocity_cov, bias, bias_cov),
@@ -536,7 +597,8 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
 def smooth(drive: InertialDrive, settings: InertialSmootherSettings = InertialSmootherSettings(),
            incremental_only: bool = False) -> InertialSmootherResult:
     """The whole pipeline: build, incremental solve, batch solve (unless ``incremental_only``),
-    marginals."""
+    marginals. The pixel sigma is identified in the batch solve only; ``incremental_only`` keeps
+    ``pixel_sigma`` (or ``pixel_sigma_start`` when None)."""
     start = time.perf_counter()
     problem = build_problem(drive, settings)
     build_s = time.perf_counter() - start
