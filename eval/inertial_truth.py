@@ -134,24 +134,18 @@ def find_inertial_truth(npz_path: str | os.PathLike, drive: InertialDrive,
 
 def frame0_gauge(truth: GroundTruth, est_pose0: np.ndarray) -> GroundTruth:
     """``truth`` moved by the rotation about gravity and the translation that put its frame-0
-    pose on the estimate's in position and yaw (``est_pose0``, world_T_imu at frame 0).
+    pose on the estimate's in position and yaw (``est_pose0``, world_T_imu at frame 0):
+    :func:`graph.inertial_init.in_estimate_gauge`, why and how.
 
-    A raw-IMU estimate fixes its world's yaw and origin at frame 0 from its own tilt there (the
-    least rotation from its measured up direction to z): a tilt error of a few mrad moves that
-    yaw by as much wherever the IMU's up is far from its z axis (EuRoC's IMU has x up), while the
-    estimate's covariance rightly gives yaw and position at frame 0 no uncertainty (they are its
-    gauge). So pose errors are scored in the estimate's gauge: ``T' = G T`` with
-    ``G = [Rz(psi), p_est0 - Rz(psi) p_gt0]`` and ``psi`` the best rotation about z from the
-    truth's frame-0 rotation onto the estimate's (closed form: ``M = A B^T``,
-    ``psi = atan2(M10 - M01, M00 + M11)``, ``A`` the estimate's and ``B`` the truth's)."""
+    A raw-IMU estimate fixes its world's yaw and origin at frame 0 from its own tilt there, a
+    few mrad off the truth's, which moves that yaw by as much wherever the IMU's up is far from
+    its z axis (EuRoC's IMU has x up), while the estimate's covariance rightly gives yaw and
+    position at frame 0 no uncertainty (they are its gauge): so pose errors are scored in the
+    estimate's gauge."""
     if truth.n == 0 or truth.frames[0] != 0:
         return truth
-    B, A = truth.poses[0, :3, :3], np.asarray(est_pose0)[:3, :3]
-    M = A @ B.T
-    psi = float(np.arctan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1]))
-    G = np.eye(4)
-    G[:3, :3] = Rotation.from_euler("z", psi).as_matrix()
-    G[:3, 3] = np.asarray(est_pose0)[:3, 3] - G[:3, :3] @ truth.poses[0, :3, 3]
     from dataclasses import replace
 
-    return replace(truth, poses=G @ truth.poses)
+    from vislam.graph.inertial_init import in_estimate_gauge
+
+    return replace(truth, poses=in_estimate_gauge(truth.poses, np.asarray(est_pose0)[None]))

@@ -133,7 +133,7 @@ def to_gravity_world(poses: np.ndarray) -> np.ndarray:
     return new_T_old @ poses
 
 
-def in_estimate_gauge(truth: np.ndarray, est_poses: np.ndarray, iterations: int = 3) -> np.ndarray:
+def in_estimate_gauge(truth: np.ndarray, est_poses: np.ndarray) -> np.ndarray:
     """Ground truth (T, 4, 4) in a gravity-aligned world (z up, e.g. :func:`to_gravity_world`'s)
     moved by a rotation about z and a translation so that its frame 0 has the estimate's yaw
     and position: the four directions the smoother's priors fix (its gauge). Needed for a NEES
@@ -141,14 +141,15 @@ def in_estimate_gauge(truth: np.ndarray, est_poses: np.ndarray, iterations: int 
     frame 0 through :func:`gravity_aligned_rotation`, the smoother from the *measured* one, and
     for an IMU whose up is far from its z axis (EuRoC's: 68 degrees) a tilt difference of
     ``d`` between them turns into a yaw difference of the order of ``d`` (0.7 degrees on
-    EuRoC V1_01), which the estimate's covariance (yaw fixed at frame 0) rightly does not hold."""
+    EuRoC V1_01), which the estimate's covariance (yaw fixed at frame 0) rightly does not hold.
+
+    The rotation about z is the best one from the truth's frame-0 rotation ``B`` onto the
+    estimate's ``A`` in the Frobenius norm, in closed form: with ``M = A B^T``,
+    ``yaw = atan2(M10 - M01, M00 + M11)``."""
     truth = np.asarray(truth, dtype=float)
     est0 = np.asarray(est_poses, dtype=float)[0]
-    yaw = 0.0
-    for _ in range(iterations):
-        Rz = Rotation.from_rotvec([0.0, 0.0, yaw]).as_matrix()
-        err = Rotation.from_matrix(Rz @ truth[0, :3, :3] @ est0[:3, :3].T).as_rotvec()
-        yaw -= err[2]
+    M = est0[:3, :3] @ truth[0, :3, :3].T
+    yaw = float(np.arctan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1]))
     move = np.eye(4)
     move[:3, :3] = Rotation.from_rotvec([0.0, 0.0, yaw]).as_matrix()
     move[:3, 3] = est0[:3, 3] - move[:3, :3] @ truth[0, :3, 3]

@@ -122,7 +122,7 @@ def test_inspect_a_raw_imu_drive(tmp_path, capsys):
 def test_ground_truth_at_frames_in_the_estimates_world():
     from scipy.spatial.transform import Rotation
 
-    from vislam.eval.inertial_truth import at_frames, heading_frame
+    from vislam.eval.inertial_truth import at_frames, world_from_file
     from vislam.eval.trajectory_files import TimedTrajectory
 
     times = np.array([10.0, 10.1, 10.2, 10.5])
@@ -138,8 +138,13 @@ def test_ground_truth_at_frames_in_the_estimates_world():
     np.testing.assert_allclose(Rotation.from_matrix(got[1, :3, :3]).as_euler("ZYX"), [0.4, 0.1, 0.0],
                                atol=1e-12)
     np.testing.assert_allclose(got[2], poses[2])
-    Y = heading_frame(poses[0])
-    local = np.linalg.inv(Y) @ poses[0]
-    # in the estimates' world the first pose has no heading and sits at the origin; pitch stays
-    np.testing.assert_allclose(local[:3, 3], 0, atol=1e-12)
-    np.testing.assert_allclose(Rotation.from_matrix(local[:3, :3]).as_euler("ZYX"), [0, 0.1, 0], atol=1e-12)
+    local = world_from_file(poses[0]) @ poses
+    # in the estimates' world the first pose sits at the origin, tilted as before (the least
+    # rotation from its up direction to z: no turn about it), and relative motion is kept
+    np.testing.assert_allclose(local[0, :3, 3], 0, atol=1e-12)
+    up = local[0, :3, :3].T @ [0, 0, 1.0]
+    np.testing.assert_allclose(up, poses[0, :3, :3].T @ [0, 0, 1.0], atol=1e-12)
+    axis = Rotation.from_matrix(local[0, :3, :3]).as_rotvec()
+    assert abs(axis[2]) < 1e-12  # the least rotation turns about a horizontal axis
+    np.testing.assert_allclose(np.linalg.inv(local[0]) @ local[3], np.linalg.inv(poses[0]) @ poses[3],
+                               atol=1e-12)
