@@ -32,10 +32,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-
 from vislam.ekf.errors import InputError
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.geometry import se3_inv
+from vislam.ekf.imu_init import level_rotation
 
 
 @dataclass(frozen=True)
@@ -111,13 +111,7 @@ def gravity_aligned_rotation(up: np.ndarray) -> np.ndarray:
     norm = float(np.linalg.norm(up))
     if not np.isfinite(norm) or norm == 0.0:
         raise InputError(f"gravity direction {up.tolist()} is not a direction")
-    up = up / norm
-    z = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(up, z)
-    s, c = float(np.linalg.norm(axis)), float(up @ z)
-    if s < 1e-12:
-        return np.eye(3) if c > 0 else Rotation.from_rotvec([np.pi, 0.0, 0.0]).as_matrix()
-    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
+    return level_rotation(up / norm)
 
 
 def to_gravity_world(poses: np.ndarray) -> np.ndarray:
