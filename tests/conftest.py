@@ -41,18 +41,30 @@ def pytest_configure(config):
     )
 
 
+#: Regression-tier test files whose tests share expensive results through a module-level cache
+#: (identifications of the same simulated drive), mapped to the file they share with: under
+#: ``--dist loadgroup`` (.ci/run) each regression file is one unit of work on one worker, and
+#: these run in the worker of the file they name.
+SHARED_WORKER = {"tests/test_track_correlation.py": "tests/test_calibrate.py"}
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     """Two kinds of test are in the regression tier (``pytest -m regression``) whether marked
     or not, so that a new one cannot slip into the fast tier: every real-data test, and every
     test of a research script in benchmarks/ (the ``benchmark_script`` fixture; the fast tier
     only checks that each script starts: tests/test_benchmark_scripts.py). The mark is added
-    before ``-m`` selects."""
+    before ``-m`` selects. Every regression test also gets an ``xdist_group`` (its file, or the
+    file it shares work with: SHARED_WORKER), which ``--dist loadgroup`` keeps on one worker."""
     for item in items:
-        if item.get_closest_marker("regression"):
-            continue
-        if item.get_closest_marker("realdata") or "benchmark_script" in getattr(item, "fixturenames", ()):
+        if not item.get_closest_marker("regression") and (
+                item.get_closest_marker("realdata")
+                or "benchmark_script" in getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.regression)
+        if item.get_closest_marker("regression"):
+            # one worker per file under --dist loadgroup (.ci/run), files that share work together
+            module = item.nodeid.split("::", 1)[0]
+            item.add_marker(pytest.mark.xdist_group(SHARED_WORKER.get(module, module)))
 
 
 def missing_data(reason: str):
