@@ -41,11 +41,30 @@ def pytest_configure(config):
     )
 
 
-#: Regression-tier test files whose tests share expensive results through a module-level cache
-#: (identifications of the same simulated drive), mapped to the file they share with: under
-#: ``--dist loadgroup`` (.ci/run) each regression file is one unit of work on one worker, and
-#: these run in the worker of the file they name.
-SHARED_WORKER = {"tests/test_track_correlation.py": "tests/test_calibrate.py"}
+#: Test files that share an expensive result with another file (a session fixture, or a
+#: module-level cache of identifications of the same simulated drive), mapped to that file:
+#: under ``--dist loadfile`` (.ci/run's regression tier) each file is one unit of work on one
+#: worker, and these go to the worker of the file they name (pytest_xdist_make_scheduler), so
+#: the result is computed once.
+SHARED_WORKER = {
+    "tests/test_track_correlation.py": "tests/test_calibrate.py",  # test_calibrate.fit
+    "tests/regression/test_agreement.py": "tests/regression/test_consistency.py",  # monte_carlo
+    "tests/test_ekf_estimators.py": "tests/regression/test_accuracy_0027.py",  # study_0027
+}
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadfile`` with the files of SHARED_WORKER in one unit of work each."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class SharedWorkerScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = super()._split_scope(nodeid)
+            return SHARED_WORKER.get(module, module)
+
+    return SharedWorkerScheduling(config, log)
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -54,17 +73,12 @@ def pytest_collection_modifyitems(config, items):
     or not, so that a new one cannot slip into the fast tier: every real-data test, and every
     test of a research script in benchmarks/ (the ``benchmark_script`` fixture; the fast tier
     only checks that each script starts: tests/test_benchmark_scripts.py). The mark is added
-    before ``-m`` selects. Every regression test also gets an ``xdist_group`` (its file, or the
-    file it shares work with: SHARED_WORKER), which ``--dist loadgroup`` keeps on one worker."""
+    before ``-m`` selects."""
     for item in items:
-        if not item.get_closest_marker("regression") and (
-                item.get_closest_marker("realdata")
-                or "benchmark_script" in getattr(item, "fixturenames", ())):
-            item.add_marker(pytest.mark.regression)
         if item.get_closest_marker("regression"):
-            # one worker per file under --dist loadgroup (.ci/run), files that share work together
-            module = item.nodeid.split("::", 1)[0]
-            item.add_marker(pytest.mark.xdist_group(SHARED_WORKER.get(module, module)))
+            continue
+        if item.get_closest_marker("realdata") or "benchmark_script" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.regression)
 
 
 def missing_data(reason: str):
