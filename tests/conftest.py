@@ -53,6 +53,7 @@ SHARED_WORKER = {
 }
 
 
+@pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: known only where it is installed
 def pytest_xdist_make_scheduler(config, log):
     """``--dist loadfile`` with the files of SHARED_WORKER in one unit of work each."""
     if config.getvalue("dist") != "loadfile":
