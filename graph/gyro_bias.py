@@ -79,6 +79,18 @@ def biased_motion_error(delta: gtsam.Pose3, D: np.ndarray, x0: gtsam.Pose3, x1: 
     return e
 
 
+def _bias_error(delta: gtsam.Pose3, D: np.ndarray, between: gtsam.Pose3,
+                bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`biased_motion_error`'s error and bias Jacobian (the same arithmetic) for the
+    relative motion ``between`` = ``x0.between(x1)`` of fixed poses."""
+    Db = D @ bias
+    P = delta.compose(gtsam.Pose3.Expmap(-Db))
+    R = P.between(between)
+    e = gtsam.Pose3.Logmap(R)
+    J_log = gtsam.Pose3.LogmapDerivative(e)
+    return e, J_log @ R.inverse().AdjointMap() @ gtsam.Pose3.ExpmapDerivative(-Db) @ D
+
+
 def biased_motion_factor(k0: int, k1: int, bias_key: int, delta: np.ndarray, D: np.ndarray,
                          noise: gtsam.noiseModel.Base) -> gtsam.CustomFactor:
     """A ``CustomFactor`` on (``k0``, ``k1``, ``bias_key``) for the relative motion ``delta``
@@ -151,16 +163,22 @@ def estimate_bias(poses: np.ndarray, deltas: np.ndarray, D: np.ndarray, covs: np
         return give_up("a motion covariance is singular")
     x = [to_pose3(T) for T in poses]
     measured = [to_pose3(d) for d in deltas]
+    # What biased_motion_error computes for the bias (the poses are fixed: their relative
+    # motions once), the normal equations' terms for all intervals at once and summed in
+    # interval order (cumulative sums from the prior's term), as a loop over k would.
+    between = [x[k].between(x[k + 1]) for k in range(len(deltas))]
+    n = len(deltas)
+    e = np.empty((n, 6))
+    Hb = np.empty((n, 6, 3))
     with np.errstate(all="ignore"):
         for _ in range(int(iterations)):
-            A = np.eye(3) / prior_sigma**2
-            g = b / prior_sigma**2
-            for k in range(len(deltas)):
-                H: list = []
-                e = biased_motion_error(measured[k], D[k], x[k], x[k + 1], b, H)
-                Hb = H[2]
-                A += Hb.T @ info[k] @ Hb
-                g += Hb.T @ info[k] @ e
+            for k in range(n):
+                e[k], Hb[k] = _bias_error(measured[k], D[k], between[k], b)
+            Ht_info = np.swapaxes(Hb, 1, 2) @ info
+            A = np.cumsum(np.concatenate([(np.eye(3) / prior_sigma**2)[None], Ht_info @ Hb]),
+                          axis=0)[-1]
+            g = np.cumsum(np.concatenate([(b / prior_sigma**2)[None],
+                                          (Ht_info @ e[:, :, None])[:, :, 0]]), axis=0)[-1]
             if not (np.isfinite(A).all() and np.isfinite(g).all()):
                 return give_up("the normal equations are not finite")
             try:

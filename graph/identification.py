@@ -205,15 +205,28 @@ def motion_residuals(poses: np.ndarray, deltas: np.ndarray, twist: np.ndarray, t
     w = np.zeros((n, 6))
     cw = np.zeros((n, 6, 6))
     scale = interval_jacobians(twist[:n], tau[:n])
+    if n == 0:
+        return w, cw, scale
+    # The same arithmetic as one interval at a time (numpy's stacked inv and matmul are the
+    # per-matrix LAPACK/BLAS calls), without a Python round trip per small array.
+    M = np.linalg.inv(scale)
+    err = np.empty((n, 6))
+    C = np.zeros((n, 6, 12))
+    C[:, :, 6:] = np.eye(6)
+    x1 = to_pose3(poses[0])
     for k in range(n):
-        Xk, Xk1 = to_pose3(poses[k]), to_pose3(poses[k + 1])
-        rel = Xk.between(Xk1)
-        err = gtsam.Pose3.Logmap(to_pose3(deltas[k]).between(rel))
-        M = np.linalg.inv(scale[k])
-        w[k] = M @ err
-        C = M @ np.hstack([-rel.inverse().AdjointMap(), np.eye(6)])
-        block = np.block([[pose_cov[k], pair_cov[k]], [pair_cov[k].T, pose_cov[k + 1]]])
-        cw[k] = C @ block @ C.T
+        x0, x1 = x1, to_pose3(poses[k + 1])
+        rel = x0.between(x1)
+        err[k] = gtsam.Pose3.Logmap(to_pose3(deltas[k]).between(rel))
+        C[k, :, :6] = -rel.inverse().AdjointMap()
+    w[:] = (M @ err[:, :, None])[:, :, 0]
+    C = M @ C
+    block = np.empty((n, 12, 12))  # the joint marginal of (X_k, X_k+1)
+    block[:, :6, :6] = pose_cov[:n]
+    block[:, :6, 6:] = pair_cov[:n]
+    block[:, 6:, :6] = np.swapaxes(pair_cov[:n], 1, 2)
+    block[:, 6:, 6:] = pose_cov[1:n + 1]
+    cw[:] = C @ block @ np.swapaxes(C, 1, 2)
     return w, cw, scale
 
 
@@ -231,13 +244,15 @@ def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
     W_inv = np.linalg.inv(W_g)
     w, cw, scale = motion_residuals(solution.poses, solution.deltas, solution.twist,
                                     solution.tau, pose_cov, pair_cov)
+    # Summed interval by interval, in order (cumulative sums), as a loop over k would.
     motion_sq = np.zeros(6)
     leverage = 0.0
     log_det_noise = 0.0
-    for k in range(T - 1):
-        motion_sq += w[k] * w[k] + np.diag(cw[k])
-        leverage += float(np.trace(W_inv @ cw[k]))
-        log_det_noise += float(np.linalg.slogdet(scale[k] @ W_g @ scale[k].T)[1])
+    if T > 1:
+        motion_sq = np.cumsum(w * w + np.diagonal(cw, axis1=1, axis2=2), axis=0)[-1]
+        leverage = float(np.cumsum(np.trace(W_inv @ cw, axis1=1, axis2=2))[-1])
+        log_det_noise = float(np.cumsum(
+            np.linalg.slogdet(scale @ W_g @ np.swapaxes(scale, 1, 2))[1])[-1])
     res, _ = stereo_residuals(solution.poses, solution.landmarks, solution.calibration,
                               problem.rows)
     pixel_sq = float(np.sum(res[:, 0] ** 2 + res[:, 1] ** 2 + 2.0 * res[:, 2] ** 2))

@@ -71,9 +71,21 @@ class WhitenedSystem:
     offsets: dict  # key -> its first column in A
 
 
-def _key_dim(key: int) -> int:
-    """Poses (``x``) are 6-dimensional; landmarks and the gyro bias 3."""
-    return 6 if chr(gtsam.Symbol(int(key)).chr()) == "x" else 3
+def _key_chars(keys) -> np.ndarray:
+    """Each key's symbol character (gtsam.Symbol's top 8 bits), as one-letter strings."""
+    k = np.asarray([int(x) for x in keys], dtype=np.uint64)
+    return (k >> np.uint64(56)).astype(np.uint8).view("S1").astype(str)
+
+
+def _key_indices(keys) -> np.ndarray:
+    """Each key's symbol index (gtsam.Symbol's low 56 bits)."""
+    k = np.asarray([int(x) for x in keys], dtype=np.uint64)
+    return (k & np.uint64((1 << 56) - 1)).astype(np.int64)
+
+
+def _key_dims(keys) -> np.ndarray:
+    """Each key's dimension: poses (``x``) 6, landmarks and the gyro bias 3."""
+    return np.where(_key_chars(keys) == "x", 6, 3) if len(keys) else np.zeros(0, dtype=np.int64)
 
 
 def whitened_system(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
@@ -85,10 +97,9 @@ def whitened_system(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     except RuntimeError as exc:
         raise estimation_error(exc, doing) from None
     keys = sorted(linear.keyVector())
-    offsets, n = {}, 0
-    for key in keys:
-        offsets[key] = n
-        n += _key_dim(key)
+    dims = _key_dims(keys)
+    offsets = dict(zip(keys, (np.cumsum(dims) - dims).tolist()))
+    n = int(dims.sum())
     triplets = linear.sparseJacobian_()
     rows = triplets[0].astype(np.int64) - 1
     cols = triplets[1].astype(np.int64) - 1
@@ -378,19 +389,20 @@ def information_solver(A: sp.spmatrix, keys: list, n_frames: int) -> LandmarksEl
     the variables ``keys``, sorted: the poses ``0..n_frames-1``, landmarks and any other
     variables (3-dimensional: the gyro bias), which join the border; with its landmarks
     eliminated. ``.solve(B)`` is ``H^-1 B`` (the Laplace posterior covariance times ``B``)."""
-    kinds = np.array([chr(gtsam.Symbol(int(k)).chr()) for k in keys])
+    kinds = _key_chars(keys)
     is_pose, is_lm = kinds == "x", kinds == "l"
-    if [int(k) for k, p in zip(keys, is_pose) if p] != [X(k) for k in range(n_frames)]:
+    pose_keys = np.asarray([int(k) for k in keys], dtype=np.uint64)[is_pose]
+    if not np.array_equal(pose_keys, np.uint64(X(0)) + np.arange(n_frames, dtype=np.uint64)):
         raise EstimationError("marginals: the graph's variables are not the expected poses and "
                               "landmarks")
     lm_keys = [k for k, l in zip(keys, is_lm) if l]
-    tracks = np.array([gtsam.Symbol(int(k)).index() for k in lm_keys], dtype=np.int64)
+    tracks = _key_indices(lm_keys) if lm_keys else np.zeros(0, dtype=np.int64)
     H = (A.T @ A).tocsr()
     other = ~(is_pose | is_lm)
     if not other.any():  # sorted keys: the landmarks ("l") come before the poses ("x")
         return eliminate_landmarks(H, 3 * len(lm_keys), n_frames, tracks)
     # columns reordered to [landmarks, poses, others] (sorted keys put "b" before "l")
-    dims = np.array([_key_dim(int(k)) for k in keys])
+    dims = _key_dims(keys)
     starts = np.r_[0, np.cumsum(dims)[:-1]]
     cols = [np.arange(s, s + d) for s, d in zip(starts, dims)]
     outer = np.concatenate([cols[i] for i in np.flatnonzero(is_lm)]

@@ -41,6 +41,33 @@ def pytest_configure(config):
     )
 
 
+#: Test files that share an expensive result with another file (a session fixture, or a
+#: module-level cache of identifications of the same simulated drive), mapped to that file:
+#: under ``--dist loadfile`` (.ci/run's regression tier) each file is one unit of work on one
+#: worker, and these go to the worker of the file they name (pytest_xdist_make_scheduler), so
+#: the result is computed once.
+SHARED_WORKER = {
+    "tests/test_track_correlation.py": "tests/test_calibrate.py",  # test_calibrate.fit
+    "tests/regression/test_agreement.py": "tests/regression/test_consistency.py",  # monte_carlo
+    "tests/test_ekf_estimators.py": "tests/regression/test_accuracy_0027.py",  # study_0027
+}
+
+
+@pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: known only where it is installed
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadfile`` with the files of SHARED_WORKER in one unit of work each."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class SharedWorkerScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = super()._split_scope(nodeid)
+            return SHARED_WORKER.get(module, module)
+
+    return SharedWorkerScheduling(config, log)
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     """Two kinds of test are in the regression tier (``pytest -m regression``) whether marked

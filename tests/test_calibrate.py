@@ -3,6 +3,8 @@ drives with known truth; the E-step's posterior blocks against gtsam.Marginals; 
 
 from __future__ import annotations
 
+import functools
+
 import gtsam
 import numpy as np
 import pytest
@@ -18,8 +20,13 @@ SETTINGS = SmootherSettings(compute_marginals=False)
 BIAS = (0.005, -0.005, 0.007)
 
 
+@functools.cache
 def fit(seed, velocity_sigma, gyro_sigma, bias=(0.0, 0.0, 0.0), pairings=("mean",), frames=300,
         **sim):
+    """The model identified on a simulated drive, computed once per test process: the same
+    drive identified again gives the same fit, so the tests that read one (the white drives of
+    tests/test_track_correlation.py are this file's) share it (the regression tier runs both
+    files in one worker: tests/conftest.py's SHARED_WORKER). Treat it as read-only."""
     drive = simulate(SimConfig(seed=seed, n_frames=frames, velocity_sigma=velocity_sigma,
                                gyro_sigma=gyro_sigma, gyro_bias=bias, **sim))
     return identify_model(drive.sequence, FilterConfig(), SETTINGS, pairings=pairings, extrinsic=False)
