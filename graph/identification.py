@@ -54,8 +54,16 @@ per-sample sigma comes out high (simulation, 0.05 m/s: vertical velocity and rol
 20-30 % high; 0.5 m/s: within 7 %), and data made with "mean" at 0.05 m/s is identified as
 "next". A velocity-noise state per sample would model it exactly. With clean velocities (0.05
 m/s) and short drives, vision barely resolves the velocity noise (a 0.1 s interval moves 5 mm
-from it): EM then creeps towards small sigmas for many steps without converging, and the
-reported sigma of a sigma (``sqrt(2 n)``) is too optimistic there.
+from it): EM then creeps towards small sigmas for many steps without converging.
+
+What the drive cannot determine (issue 34, :mod:`graph.parameter_uncertainty`). Each white
+level's uncertainty is ``sd(log sigma) = 1 / sqrt(2 n (1 - r))``, ``r`` the share of the final
+E-step's expected squared residuals that the posterior holds over the intervals vision spans
+(``n`` of them; a gap between tracks informs nothing). Where it exceeds
+``UNDETERMINED_LOG_SD`` the model takes the samples' own second-difference bound instead of
+EM's estimate (never less), the level is named in ``noise_undetermined``, and the long-run
+levels are measured from there (:mod:`graph.motion_correlation`, with the same rule and a
+prior). The gyro bias's sigma is a sample's sigma over the square root of that information.
 """
 
 from __future__ import annotations

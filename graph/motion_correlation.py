@@ -38,8 +38,19 @@ sigma_interval^2`` (``velocity_correlation_time``, ``gyro_correlation_time``; fr
 integrated correlation time of the interval noise) and the estimators use ``sigma sqrt(tau)``
 (:func:`ekf.model.model_config`). With the "mean" pairing two intervals share a sample, so
 white samples give ``tau = 2``; the test's null is the samples', so that alone is not
-evidence. Drives shorter than ``MIN_BLOCKS`` blocks are not tested (too few sums to tell).
-The simulator's white noise keeps none; what real drives keep is in docs/findings.md.
+evidence. The simulator's white noise keeps none; what real drives keep is in docs/findings.md.
+
+What the blocks cannot determine (issue 34). Each axis's long-run sigma has its own
+uncertainty, ``sd(log sigma) = 1 / sqrt(2 n_blocks (1 - r))`` with ``r`` the posterior's share of
+the blocks' expected squared residuals at the fixed point (:mod:`graph.parameter_uncertainty`:
+a flat fixed point, where vision leaves the blocks to the posterior, has ``r`` near 1). An axis
+it leaves undetermined takes a conservative value instead of "white": the upper end of what the
+blocks allow, capped by a prior (a slow speed-scale error on the velocity axes; the gyro bias's
+uncertainty on the gyro axes), never below the estimate. The upper end is found by EM itself,
+one step down from the prior (:func:`_upper_end`): below the level vision resolves over a
+block the fixed point is flat, above it EM moves down. A drive of fewer than ``MIN_BLOCKS``
+blocks measures nothing: every axis takes its prior. A 25 s drive has 5 blocks, so even with
+``r = 0`` its sd is 0.32: short drives never determine their slow errors, and the prior speaks.
 """
 
 from __future__ import annotations
@@ -52,7 +63,8 @@ import numpy as np
 from scipy.optimize import nnls
 from scipy.stats import chi2
 
-from vislam.graph.parameter_uncertainty import (MAX_LOG_SD, conservative_level, log_sigma_sd,
+from vislam.graph.parameter_uncertainty import (MAX_LOG_SD, UNDETERMINED_LOG_SD,
+                                                 conservative_level, log_sigma_sd,
                                                  missing_fraction)
 from vislam.graph.pose_conversions import interval_jacobians, to_pose3
 
@@ -231,6 +243,24 @@ def fixed_point(step, theta: np.ndarray, floor: np.ndarray, rtol: float = RTOL,
     return theta, False
 
 
+def _upper_end(step, theta: np.ndarray, log_sd: np.ndarray, prior: np.ndarray) -> np.ndarray:
+    """(6,) the upper end of what the blocks allow on each undetermined axis whose prior lies
+    above the fixed point: one EM step down from the prior (``step`` at the prior on those
+    axes), at most the prior; the prior elsewhere. EM's fixed point is flat below the level
+    vision can resolve over a block (the smoother follows the velocities, and the posterior
+    holds all of a block's residual): there the data cannot tell a long-run sigma from a larger
+    one. Started above, EM moves down as far as the blocks' residuals demand and no further, so
+    its first step from the prior is where the data stop allowing more (about the prior
+    itself where vision cannot resolve a block at all)."""
+    prior = np.asarray(prior, dtype=float)
+    above = (log_sd > UNDETERMINED_LOG_SD) & (np.log(np.maximum(prior, 1e-300)) > theta)
+    if not np.any(above):
+        return prior
+    start = np.where(above, np.log(np.maximum(prior, 1e-300)), theta)
+    down = np.exp(step(start))
+    return np.where(above, np.minimum(prior, down), prior)
+
+
 def motion_correlation(solve, solution, interval_sigma: np.ndarray, sample_sigma: np.ndarray,
                        prior_sigma: np.ndarray | None = None) -> MotionCorrelation:
     """The long-run twist noise of a drive (module docstring).
@@ -282,10 +312,14 @@ def motion_correlation(solve, solution, interval_sigma: np.ndarray, sample_sigma
     stats = state["stats"]
     missing = missing_fraction(stats.posterior, stats.expected)
     log_sd = log_sigma_sd(n, missing)
+    cap = _upper_end(step, theta, log_sd, prior)
     levels = []
     for i, a in enumerate(AXES):
-        level = conservative_level(f"{a} long-run", long_run[i], log_sd[i], missing[i], prior[i],
-                                   PRIOR_WORDS[i], floor=interval_sigma[i])
+        words = (PRIOR_WORDS[i] if cap[i] >= prior[i] else
+                 f"the upper end the blocks allow (one EM step down from {PRIOR_WORDS[i]}, "
+                 f"{prior[i]:.3g})")
+        level = conservative_level(f"{a} long-run", long_run[i], log_sd[i], missing[i], cap[i],
+                                   words, floor=interval_sigma[i], bound=True)
         if level.determined and not ratio[i] > threshold:
             # Determined and no larger than white samples allow: white (the test's null).
             level = replace(level, value=float(interval_sigma[i]),
