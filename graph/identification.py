@@ -566,16 +566,14 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     # The bias's uncertainty: a sample's gyro sigma over the square root of the intervals'
     # information on it, which vision gives only where it pins the rotation (the gyro levels'
     # sd(log sigma) = 1 / sqrt(2 n_eff)): sigma_g sqrt(2) sd. Given the trajectory (n_eff = n)
-    # it was 25x too small on a sparse drive. A bias the data could neither confirm (BIC) nor
-    # rule out, at its estimate, and the uncertainty of one kept, are slow errors of the whole
-    # drive: the gyro's prior, white-equivalent per interval, is their size times sqrt(n).
+    # it was 25x too small on a sparse drive. The uncertainty of the bias, kept or not (BIC), is
+    # a slow error of the whole drive: the gyro's prior, white-equivalent per interval, is its
+    # size times sqrt(n).
     n = max(stats.n_intervals, 1)
     bias_sd = sample[:3] * np.sqrt(2.0) * np.array([lv.log_sd for lv in levels[:3]])
     if has_bias:
         bias_std = bias_sd
-    unconfirmed = (np.zeros(3) if has_bias or solution.gyro_bias is None
-                   else np.abs(np.asarray(solution.gyro_bias, dtype=float)))
-    prior = np.r_[np.hypot(unconfirmed, bias_sd) * np.sqrt(n), speed_scale_prior_sigma(
+    prior = np.r_[bias_sd * np.sqrt(n), speed_scale_prior_sigma(
         seq.linear_velocity, float(np.median(np.diff(seq.timestamps))), stats.n_intervals)]
     motion = _motion_correlation(seq, em.cam_T_imu, cfg, settings, em_tol,
                                  solution if has_bias else no_bias, interval, f,

@@ -55,9 +55,8 @@ one, else ``sigma exp(UPPER_Z sd)`` capped by a physical prior:
   sum; the white-equivalent interval variance that matches it is ``a^2 v^2 L`` (``v^2`` the
   drive's mean square on that axis, ``L`` the prior's intervals or the drive's, whichever is
   fewer);
-* the long-run (slow) gyro error: the gyro bias's own uncertainty, or a bias the data could
-  neither confirm (BIC) nor rule out, at its estimate: a constant error of the whole drive,
-  white-equivalent ``|b| sqrt(n)`` per interval. The bias's uncertainty is a sample's gyro
+* the long-run (slow) gyro error: the gyro bias's own uncertainty, whether BIC keeps the bias
+  or not: a constant error of the whole drive, white-equivalent ``sd_b sqrt(n)`` per interval. The bias's uncertainty is a sample's gyro
   sigma over the square root of the information vision gives on it: with the gyro level's
   ``sd(log sigma) = 1 / sqrt(2 n_eff)``, ``sigma_g sqrt(2) sd`` (given the trajectory, as
   before, ``sigma_g / sqrt(n)``: 25x too small on a sparse drive, docs/findings.md).
@@ -159,7 +158,8 @@ class LevelUncertainty:
 
 
 def conservative_level(name: str, estimate: float, log_sd: float, missing: float, cap: float,
-                       cap_words: str, floor: float = 0.0, bound: bool = False) -> LevelUncertainty:
+                       cap_words: str, floor: float = 0.0, bound: bool = False,
+                       undetermined_log_sd: float = UNDETERMINED_LOG_SD) -> LevelUncertainty:
     """The value the model takes for one level (module docstring): the estimate where it is
     determined; else ``estimate exp(UPPER_Z log_sd)`` capped by ``cap`` (``cap_words`` says
     what it is), never below the estimate or ``floor``. With ``bound``, ``cap`` is an upper
