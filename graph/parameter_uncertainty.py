@@ -164,9 +164,10 @@ def conservative_level(name: str, estimate: float, log_sd: float, missing: float
     determined; else ``estimate exp(UPPER_Z log_sd)`` capped by ``cap`` (``cap_words`` says
     what it is), never below the estimate or ``floor``. With ``bound``, ``cap`` is an upper
     bound the data themselves give, and an undetermined level takes it (EM's estimate of an
-    undetermined level is biased low by more than its sd says: module docstring)."""
+    undetermined level is biased low by more than its sd says: module docstring).
+    ``undetermined_log_sd`` is where the line is drawn (default :data:`UNDETERMINED_LOG_SD`)."""
     estimate = float(estimate)
-    if log_sd <= UNDETERMINED_LOG_SD:
+    if log_sd <= undetermined_log_sd:
         value = max(estimate, floor)
         return LevelUncertainty(name, estimate, log_sd, missing, value, True,
                                 f"determined (sd of log sigma {log_sd:.2f})", cap)
