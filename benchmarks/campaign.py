@@ -32,6 +32,14 @@ drives (0 of 79), and the noisy edition with it (no speed error) fails NEES on 1
 with 3 or more observations a frame. Even drives with no optional fault fail NEES on 2 of 11
 (dead reckoning 17-19): one drive's mean pose NEES is correlated along the drive, so some such
 failures are chance.
+
+Measured on branch h-undet (issue 34 items 1 and 3: undetermined noise levels take conservative
+values, docs/findings.md "Undetermined means conservative"), drives 0-29 (the base on the
+same 30: ATE 26, NEES 16, both 15): the ATE assertion holds on 17 (56.7 %), the NEES
+assertion on 24 (80 %), both on 16 (53.3 %); 838 s wall on the shared machine, 4.1-23.7 s of
+CPU a drive (mean 9.3). Of the 6 NEES failures, 2 are sparse noisy drives above the band and 4
+clean drives below it (the model too wide); 11 of the 13 ATE failures are clean velocities,
+where the conservative slow-error prior lets vision carry the forward motion.
 """
 
 from __future__ import annotations

@@ -14,6 +14,9 @@ two disagree::
     pixel_correlation_time = 5.3                # frames; absent: errors independent along a track
     velocity_correlation_time = [1.0, 30.0, 8.0]  # frames, x y z; absent: white velocity errors
     gyro_correlation_time = [1.0, 1.0, 1.0]       # frames, x y z; absent: white gyro errors
+    velocity_sigma_log_sd = [0.05, 0.3, 2.0]    # sd of log velocity_sigma, x y z (optional)
+    gyro_sigma_log_sd = [0.05, 0.05, 0.05]      # sd of log gyro_sigma (optional)
+    noise_undetermined = ["velocity_sigma_z", "velocity_correlation_time_x"]  # conservative values
     gyro_bias = [0.001, -0.002, 0.0005]         # rad/s; absent: the data supports none
     gyro_bias_sigma = [1e-4, 1e-4, 1e-4]        # rad/s (optional, informative)
     radial_k1 = 0.01                            # lens radial term; absent: the data supports none
@@ -57,6 +60,17 @@ axis, >= 1, :mod:`graph.motion_correlation`) the long-run variance of an interva
 over its white variance: a velocity source's errors drift slowly, and a drive's drift is built
 from their slow part. The estimators treat intervals as independent, so they use the long-run
 interval sigma, the interval sigma times ``sqrt(tau)`` (:func:`model_config`). Absent: 1.
+
+What the drive cannot determine (issue 34). ``noise_undetermined`` names the noise levels
+(:data:`NOISE_LEVELS`: ``velocity_sigma_x`` ... ``gyro_correlation_time_z``) that the drive
+does not determine (:mod:`graph.parameter_uncertainty`: where vision barely constrains the
+motion, EM's fixed point is flat); their values are then conservative, not point estimates:
+the upper end of what the data allow, capped by the samples' own second differences (white
+sigmas) or by a prior on slow speed errors (long-run ratios). ``velocity_sigma_log_sd`` and
+``gyro_sigma_log_sd`` are the data's standard deviations of each log sigma; the estimators
+widen a determined sigma by ``exp(sd^2)`` (:func:`sigma_widening`), so that a model fitted to
+a few tracks a frame is not used as if it were known. Absent: no widening, nothing
+undetermined (a model written by hand, or before issue 34).
 
 The radial term. ``radial_k1`` is a lens distortion the file's pixels carry beyond its pinhole
 ``K``: ``x_d = x (1 + k1 r^2)`` in normalised coordinates about the principal point
@@ -115,6 +129,17 @@ MAX_PIXEL_CORRELATION_TIME = 1000.0
 #: Largest velocity or gyro correlation time accepted (frames: the long-run variance over the
 #: white interval variance, graph.motion_correlation).
 MAX_MOTION_CORRELATION_TIME = 1e6
+#: Names of the noise levels a drive may leave undetermined (``noise_undetermined``): the white
+#: per-sample sigmas and the long-run ratios (correlation times), per axis.
+NOISE_LEVELS = tuple(f"{key}_{axis}" for key in ("velocity_sigma", "gyro_sigma",
+                                                 "velocity_correlation_time",
+                                                 "gyro_correlation_time")
+                     for axis in "xyz")
+#: Largest standard deviation of a log sigma accepted (graph.parameter_uncertainty.MAX_LOG_SD).
+MAX_LOG_SIGMA_SD = 10.0
+#: Largest sd of a log sigma that widens a determined sigma: graph.parameter_uncertainty's
+#: UNDETERMINED_LOG_SD (above it a level is undetermined and not widened).
+MAX_WIDENED_LOG_SD = 0.15
 #: Longest ``source`` text.
 MAX_SOURCE_CHARS = 10_000
 #: FilterConfig fields a model sets (``gyro_bias`` only when the model says "no bias").
@@ -220,6 +245,19 @@ def _check_undetermined(value: Any) -> tuple[str, ...]:
     raise ValueError(f"must be {what}, got {show_value(value)}")
 
 
+def _check_log_sd(value: Any) -> tuple[float, float, float]:
+    return _vector(value, Rule("float", 0.0, MAX_LOG_SIGMA_SD), 3,
+                   f"an array of 3 numbers from 0 to {MAX_LOG_SIGMA_SD:g} (x, y, z)")
+
+
+def _check_noise_undetermined(value: Any) -> tuple[str, ...]:
+    if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value) \
+            and all(v in NOISE_LEVELS for v in value) and len(set(value)) == len(value):
+        return tuple(c for c in NOISE_LEVELS if c in value)  # canonical order
+    raise ValueError("must be an array of distinct names from "
+                     + ", ".join(repr(c) for c in NOISE_LEVELS) + f", got {show_value(value)}")
+
+
 def _check_source(value: Any) -> str:
     if isinstance(value, str) and len(value) <= MAX_SOURCE_CHARS:
         return value
@@ -236,6 +274,9 @@ MODEL_CHECKS = {
     "pixel_correlation_time": _check_correlation_time,
     "velocity_correlation_time": _check_motion_correlation_time,
     "gyro_correlation_time": _check_motion_correlation_time,
+    "velocity_sigma_log_sd": _check_log_sd,
+    "gyro_sigma_log_sd": _check_log_sd,
+    "noise_undetermined": _check_noise_undetermined,
     "gyro_bias": _check_bias,
     "gyro_bias_sigma": _check_bias_sigma,
     "radial_k1": _check_radial,
@@ -311,6 +352,14 @@ class Model:
     velocity_correlation_time: tuple[float, float, float] | None = None
     #: The same for the gyro noise.
     gyro_correlation_time: tuple[float, float, float] | None = None
+    #: Standard deviation of log velocity_sigma per axis, from the data (None: unknown); the
+    #: estimators widen a determined sigma by exp(sd^2) (model_config).
+    velocity_sigma_log_sd: tuple[float, float, float] | None = None
+    #: The same for gyro_sigma.
+    gyro_sigma_log_sd: tuple[float, float, float] | None = None
+    #: Noise levels the drive cannot determine (names from NOISE_LEVELS): their values are the
+    #: conservative ones graph.parameter_uncertainty takes, not point estimates.
+    noise_undetermined: tuple[str, ...] = ()
     #: Sigmas of the extrinsic (translation m, then rotation rad), None if not estimated.
     cam_T_imu_sigma: tuple[float, ...] | None = None
     #: Extrinsic components the drive cannot determine (names from EXTRINSIC_COMPONENTS).
@@ -325,7 +374,8 @@ class Model:
                   if f.name != "file"}
         for key in ("gyro_bias", "gyro_bias_sigma", "radial_k1", "radial_k1_sigma",
                     "pixel_correlation_time", "velocity_correlation_time",
-                    "gyro_correlation_time", "cam_T_imu_sigma"):
+                    "gyro_correlation_time", "cam_T_imu_sigma", "velocity_sigma_log_sd",
+                    "gyro_sigma_log_sd"):
             if values[key] is None:
                 del values[key]
         for name, value in _check_values(values, "model setting").items():
@@ -412,7 +462,8 @@ class Model:
                  "# sigma (px) and its correlation time along a track",
                  "# (frames, absent: none), gyro bias (rad/s, absent: none), radial lens term",
                  "# (absent: none), velocity pairing, cam_T_imu (rows) and its sigmas",
-                 "# (translation m, then rotation rad).",
+                 "# (translation m, then rotation rad); noise_undetermined names the levels the",
+                 "# drive cannot determine (their values are conservative, not estimates).",
                  "[model]"]
         lines += _toml_items(self.to_dict())
         if self.file:
@@ -482,7 +533,8 @@ def _toml_value(value: Any) -> str:
 def _toml_items(values: Mapping[str, Any]) -> list[str]:
     lines = []
     for key, value in values.items():
-        if value is None or key == "file" or (key == "cam_T_imu_undetermined" and not value):
+        if value is None or key == "file" or (key in ("cam_T_imu_undetermined",
+                                                      "noise_undetermined") and not value):
             continue
         if key == "cam_T_imu":
             rows = ",\n".join("    " + _toml_value(row) for row in value)
@@ -561,11 +613,29 @@ def long_run_pixel_sigma(pixel_sigma: float, correlation_time: float | None) -> 
     return pixel_sigma * math.sqrt(correlation_time or 1.0)
 
 
+def sigma_widening(model: Model, kind: str) -> tuple[float, float, float]:
+    """The factor per axis on the ``kind`` ("velocity" or "gyro") sigma for its own
+    uncertainty: ``exp(sd^2)``, ``sd`` the model's ``<kind>_sigma_log_sd`` (a Gaussian whose log
+    sigma is uncertain by ``sd`` has, averaged over it, the variance ``sigma^2 exp(2 sd^2)``);
+    1 where the sd is unknown or the axis's sigma or long-run ratio is undetermined (its value
+    is already the conservative one, graph.parameter_uncertainty)."""
+    sd = getattr(model, f"{kind}_sigma_log_sd")
+    if sd is None:
+        return (1.0, 1.0, 1.0)
+    out = []
+    for axis, s in zip("xyz", sd):
+        undetermined = (f"{kind}_sigma_{axis}" in model.noise_undetermined
+                        or f"{kind}_correlation_time_{axis}" in model.noise_undetermined)
+        out.append(1.0 if undetermined else math.exp(min(s, MAX_WIDENED_LOG_SD) ** 2))
+    return tuple(out)
+
+
 def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     """``config`` with the model's noise model: velocity and gyro sigmas per axis (per
     interval: the model's per-sample sigmas times :func:`interval_sigma_factor`, the covariance
     ``vislam calibrate`` fitted, times sqrt of the velocity's and gyro's correlation times: the
-    long-run interval sigma, module docstring), the pixel sigma times sqrt of its correlation time along a
+    long-run interval sigma, module docstring, and times :func:`sigma_widening` for the sigma's own
+    uncertainty), the pixel sigma times sqrt of its correlation time along a
     track (the long-run sigma, module docstring), velocity pairing; ``gyro_bias=False`` when the
     model says the data has no bias (a model with a bias leaves ``gyro_bias`` as the config has
     it: the bias is subtracted from the data by :func:`model_sequence`, and a filter estimating
@@ -573,9 +643,13 @@ def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     f = interval_sigma_factor(model.velocity_pairing)
     v_time = model.velocity_correlation_time or (1.0, 1.0, 1.0)
     g_time = model.gyro_correlation_time or (1.0, 1.0, 1.0)
+    v_wide = sigma_widening(model, "velocity")
+    g_wide = sigma_widening(model, "gyro")
     changes: dict[str, Any] = {
-        "velocity_sigma": tuple(f * x * math.sqrt(t) for x, t in zip(model.velocity_sigma, v_time)),
-        "gyro_sigma": tuple(f * x * math.sqrt(t) for x, t in zip(model.gyro_sigma, g_time)),
+        "velocity_sigma": tuple(f * x * math.sqrt(t) * w
+                                for x, t, w in zip(model.velocity_sigma, v_time, v_wide)),
+        "gyro_sigma": tuple(f * x * math.sqrt(t) * w
+                            for x, t, w in zip(model.gyro_sigma, g_time, g_wide)),
         "pixel_sigma": long_run_pixel_sigma(model.pixel_sigma, model.pixel_correlation_time),
         "velocity_pairing": model.velocity_pairing,
     }

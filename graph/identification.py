@@ -54,8 +54,16 @@ per-sample sigma comes out high (simulation, 0.05 m/s: vertical velocity and rol
 20-30 % high; 0.5 m/s: within 7 %), and data made with "mean" at 0.05 m/s is identified as
 "next". A velocity-noise state per sample would model it exactly. With clean velocities (0.05
 m/s) and short drives, vision barely resolves the velocity noise (a 0.1 s interval moves 5 mm
-from it): EM then creeps towards small sigmas for many steps without converging, and the
-reported sigma of a sigma (``sqrt(2 n)``) is too optimistic there.
+from it): EM then creeps towards small sigmas for many steps without converging.
+
+What the drive cannot determine (issue 34, :mod:`graph.parameter_uncertainty`). Each white
+level's uncertainty is ``sd(log sigma) = 1 / sqrt(2 n (1 - r))``, ``r`` the share of the final
+E-step's expected squared residuals that the posterior holds over the intervals vision spans
+(``n`` of them; a gap between tracks informs nothing). Where it exceeds
+``UNDETERMINED_LOG_SD`` the model takes the samples' own second-difference bound instead of
+EM's estimate (never less), the level is named in ``noise_undetermined``, and the long-run
+levels are measured from there (:mod:`graph.motion_correlation`, with the same rule and a
+prior). The gyro bias's sigma is a sample's sigma over the square root of that information.
 """
 
 from __future__ import annotations
@@ -73,6 +81,9 @@ from vislam.ekf.conventions import estimate_cov_to_gtsam
 from vislam.ekf.errors import EstimationError
 from vislam.ekf.model import interval_sigma_factor, long_run_pixel_sigma, with_extrinsic, without_radial
 from vislam.ekf.sequence import Sequence
+from vislam.graph.parameter_uncertainty import (MAX_LOG_SD, conservative_level, log_sigma_sd,
+                                                 missing_fraction, speed_scale_prior_sigma,
+                                                 white_sigma_bound)
 from vislam.graph.pose_conversions import interval_jacobians, to_pose3
 from vislam.graph.settings import SmootherSettings
 
@@ -95,6 +106,13 @@ class NoiseStatistics:
     chi2: float  # 2 x the graph's error at the solution
     log_det_noise: float  # sum of log det of every Gaussian factor's covariance
     log_det_information: float  # log det H (Laplace term)
+    #: (6,) over the intervals vision spans (a track seen at both ends), the sum of E[w_i^2]
+    #: and the posterior's part of it (diag C Sigma C^T): what vision leaves open there; their
+    #: number. The other intervals (gaps) carry no information from the data on the noise
+    #: (only the velocity, and the twist-smoothness prior, span them).
+    spanned_sq: np.ndarray | None = None
+    spanned_posterior: np.ndarray | None = None
+    n_spanned: int = 0
 
     @property
     def interval_sigma(self) -> np.ndarray:
@@ -154,6 +172,13 @@ class ModelFit:
     #: pairing -> Laplace -2 log L under independent intervals (reported; it favours "mean",
     #: whose halved variance it credits while ignoring the correlation of its intervals)
     pairing_laplace: dict = field(default_factory=dict)
+    #: per white noise level (GTSAM order: gyro x y z, velocity x y z), how well the drive
+    #: determines it and the value taken (graph.parameter_uncertainty.LevelUncertainty); the
+    #: long-run levels are in motion_correlation_test["levels"]
+    noise_levels: tuple = ()
+    #: names (ekf.model.NOISE_LEVELS) of the noise levels the drive cannot determine, which
+    #: take a conservative value
+    noise_undetermined: tuple[str, ...] = ()
     iterations: int = 0
     converged: bool = False
     seconds: float = 0.0
@@ -171,6 +196,8 @@ class ModelFit:
         """The :class:`ekf.model.Model` (per-sample sigmas; the file's extrinsic under [file])."""
         from vislam.ekf.model import EXTRINSIC_COMPONENTS, Model
 
+        log_sd = None if not self.noise_levels else tuple(
+            float(min(lv.log_sd, MAX_LOG_SD)) for lv in self.noise_levels)
         sigma = None if self.cam_T_imu_cov is None else tuple(
             float(x) for x in np.sqrt(np.diag(self.cam_T_imu_cov)))
         return Model(
@@ -189,6 +216,9 @@ class ModelFit:
             cam_T_imu_sigma=sigma,
             cam_T_imu_undetermined=tuple(n for n in EXTRINSIC_COMPONENTS
                                          if n in self.cam_T_imu_undetermined),
+            velocity_sigma_log_sd=log_sd[3:] if log_sd is not None else None,
+            gyro_sigma_log_sd=log_sd[:3] if log_sd is not None else None,
+            noise_undetermined=self.noise_undetermined,
             source=source,
             file={"cam_T_imu": np.array(self.file_cam_T_imu)},
         )
@@ -233,7 +263,7 @@ def motion_residuals(poses: np.ndarray, deltas: np.ndarray, twist: np.ndarray, t
 def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
     """The E-step: expected squared residuals of the motion and stereo factors of a solved
     smoother (:class:`graph.smoother.SmootherSolution`) and the Laplace likelihood terms."""
-    from vislam.graph.factors import stereo_residuals
+    from vislam.graph.factors import stereo_residuals, unconstrained_intervals
     from vislam.graph.marginals import pose_chain_covariances
 
     problem, values = solution.problem, solution.values
@@ -246,10 +276,18 @@ def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
                                     solution.tau, pose_cov, pair_cov)
     # Summed interval by interval, in order (cumulative sums), as a loop over k would.
     motion_sq = np.zeros(6)
+    spanned = ~unconstrained_intervals(problem.rows, T)
+    spanned_sq = np.zeros(6)
+    spanned_posterior = np.zeros(6)
     leverage = 0.0
     log_det_noise = 0.0
     if T > 1:
-        motion_sq = np.cumsum(w * w + np.diagonal(cw, axis1=1, axis2=2), axis=0)[-1]
+        terms = w * w + np.diagonal(cw, axis1=1, axis2=2)
+        motion_sq = np.cumsum(terms, axis=0)[-1]
+        # adding the zeros of the other intervals changes no sum: as the loop over k would
+        spanned_sq = np.cumsum(np.where(spanned[:, None], terms, 0.0), axis=0)[-1]
+        spanned_posterior = np.cumsum(np.where(spanned[:, None], np.diagonal(cw, axis1=1, axis2=2),
+                                               0.0), axis=0)[-1]
         leverage = float(np.cumsum(np.trace(W_inv @ cw, axis1=1, axis2=2))[-1])
         log_det_noise = float(np.cumsum(
             np.linalg.slogdet(scale @ W_g @ np.swapaxes(scale, 1, 2))[1])[-1])
@@ -268,7 +306,8 @@ def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
         pixel_sq=pixel_sq, n_pixel_dims=n_dims,
         pixel_leverage=float(np.clip(n_params - other, 0.0, n_dims - 1.0)),
         chi2=2.0 * float(problem.graph.error(values)), log_det_noise=log_det_noise,
-        log_det_information=float(log_det_h),
+        log_det_information=float(log_det_h), spanned_sq=spanned_sq,
+        spanned_posterior=spanned_posterior, n_spanned=int(np.count_nonzero(spanned)),
     )
 
 
@@ -524,8 +563,6 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     has_bias = statistic > threshold and solution.gyro_bias is not None
     bias = np.asarray(solution.gyro_bias, dtype=float) if has_bias else None
     bias_std = None
-    if has_bias:  # given the trajectory: a sample's gyro sigma / sqrt(n)
-        bias_std = stats.interval_sigma[:3] / f / np.sqrt(max(stats.n_intervals, 1))
 
     # The pixel errors' correlation along tracks, from the residuals of the final solution:
     # the estimators then use the long-run pixel sigma (graph.track_correlation).
@@ -537,20 +574,39 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     # The velocity and gyro errors' slow part, on blocks of the drive under the model the
     # estimators will use (bias as decided, long-run pixel sigma): where it is significant the
     # estimators use the long-run interval sigma (graph.motion_correlation).
-    interval = stats.interval_sigma
+    # Where the drive cannot determine a white level, the model takes the upper end of what
+    # the data allow (graph.parameter_uncertainty); the long-run levels are measured from there
+    # and, where undetermined, take the prior on slow speed errors.
+    levels = white_noise_levels(seq, stats, f)
+    sample = np.array([lv.value for lv in levels])
+    interval = f * sample
+    # The bias's uncertainty: a sample's gyro sigma over the square root of the intervals'
+    # information on it, which vision gives only where it pins the rotation (the gyro levels'
+    # sd(log sigma) = 1 / sqrt(2 n_eff)): sigma_g sqrt(2) sd. Given the trajectory (n_eff = n)
+    # it was 25x too small on a sparse drive. The uncertainty of the bias, kept or not (BIC), is
+    # a slow error of the whole drive: the gyro's prior, white-equivalent per interval, is its
+    # size times sqrt(n).
+    n = max(stats.n_intervals, 1)
+    bias_sd = sample[:3] * np.sqrt(2.0) * np.array([lv.log_sd for lv in levels[:3]])
+    if has_bias:
+        bias_std = bias_sd
+    prior = np.r_[bias_sd * np.sqrt(n), speed_scale_prior_sigma(
+        seq.linear_velocity, float(np.median(np.diff(seq.timestamps))), stats.n_intervals)]
     motion = _motion_correlation(seq, em.cam_T_imu, cfg, settings, em_tol,
                                  solution if has_bias else no_bias, interval, f,
-                                 long_run_pixel_sigma(pixel_sigma, correlation.time), has_bias)
+                                 long_run_pixel_sigma(pixel_sigma, correlation.time), has_bias,
+                                 prior)
+    undetermined = noise_undetermined(levels, motion.levels)
 
-    n = max(stats.n_intervals, 1)
     dof_px = max(stats.n_pixel_dims - stats.pixel_leverage, 1.0)
+    sample_std = np.array([lv.estimate * lv.log_sd for lv in levels])
     ext = em.extrinsic
     return ModelFit(
-        velocity_sigma=interval[3:] / f,
-        gyro_sigma=interval[:3] / f,
+        velocity_sigma=sample[3:],
+        gyro_sigma=sample[:3],
         pixel_sigma=pixel_sigma,
-        velocity_sigma_std=interval[3:] / f / np.sqrt(2.0 * n),
-        gyro_sigma_std=interval[:3] / f / np.sqrt(2.0 * n),
+        velocity_sigma_std=sample_std[3:],
+        gyro_sigma_std=sample_std[:3],
         pixel_sigma_std=pixel_sigma / float(np.sqrt(2.0 * dof_px)),
         pairing=best,
         gyro_bias=bias,
@@ -578,6 +634,8 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
         motion_correlation_test=motion.to_dict(),
         pairing_scores=scores,
         pairing_laplace=laplace,
+        noise_levels=tuple(levels),
+        noise_undetermined=undetermined,
         iterations=total_steps,
         converged=em.converged,
         seconds=time.perf_counter() - t0,
@@ -586,9 +644,46 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     )
 
 
+#: The white noise levels' names in GTSAM order (ekf.model.NOISE_LEVELS' first six, reordered).
+_WHITE_NAMES = ("gyro_sigma_x", "gyro_sigma_y", "gyro_sigma_z",
+                "velocity_sigma_x", "velocity_sigma_y", "velocity_sigma_z")
+_LONG_RUN_NAMES = ("gyro_correlation_time_x", "gyro_correlation_time_y", "gyro_correlation_time_z",
+                   "velocity_correlation_time_x", "velocity_correlation_time_y",
+                   "velocity_correlation_time_z")
+
+
+def white_noise_levels(seq: Sequence, stats: NoiseStatistics, f: float) -> list:
+    """Per white noise level (GTSAM order), :func:`graph.parameter_uncertainty.
+    conservative_level` of EM's per-sample sigma: its uncertainty from the posterior's share of
+    the final E-step over the intervals vision spans (a gap's noise is known to the data only
+    through the velocity itself and the smoothness prior: no information), capped where
+    undetermined by the second differences of the measured samples (``f`` the pairing's
+    :func:`ekf.model.interval_sigma_factor`)."""
+    estimate = stats.interval_sigma / f
+    if stats.spanned_sq is None:
+        missing, n = np.zeros(6), stats.n_intervals
+    else:
+        missing, n = missing_fraction(stats.spanned_posterior, stats.spanned_sq), stats.n_spanned
+    log_sd = log_sigma_sd(n, missing)
+    bound = np.r_[white_sigma_bound(seq.angular_velocity), white_sigma_bound(seq.linear_velocity)]
+    return [conservative_level(name, estimate[i], log_sd[i], missing[i], bound[i],
+                               "the samples' own second differences", bound=True)
+            for i, name in enumerate(_WHITE_NAMES)]
+
+
+def noise_undetermined(white: list, long_run: tuple) -> tuple[str, ...]:
+    """The names (ekf.model.NOISE_LEVELS order) of the undetermined levels."""
+    from vislam.ekf.model import NOISE_LEVELS
+
+    names = {n for n, lv in zip(_WHITE_NAMES, white) if not lv.determined}
+    names |= {n for n, lv in zip(_LONG_RUN_NAMES, long_run) if not lv.determined}
+    return tuple(n for n in NOISE_LEVELS if n in names)
+
+
 def _motion_correlation(seq: Sequence, cam_T_imu: np.ndarray, cfg: FilterConfig,
                         settings: SmootherSettings, tol: float, solution, interval: np.ndarray,
-                        f: float, pixel_sigma: float, has_bias: bool):
+                        f: float, pixel_sigma: float, has_bias: bool,
+                        prior: np.ndarray | None = None):
     """:func:`graph.motion_correlation.motion_correlation` of the identified model: the
     smoother solved with the rows of ``solution``, the long-run ``pixel_sigma`` and the gyro
     bias estimated only where the model has one."""
@@ -605,7 +700,7 @@ def _motion_correlation(seq: Sequence, cam_T_imu: np.ndarray, cfg: FilterConfig,
                                                 velocity_sigma=tuple(map(float, sigma[3:]))),
                               smoother, warm_start=warm)
 
-    return motion_correlation(solve, solution, interval, interval / f)
+    return motion_correlation(solve, solution, interval, interval / f, prior)
 
 
 __all__ = ["ModelFit", "EMResult", "NoiseStatistics", "identify_model", "em_noise",

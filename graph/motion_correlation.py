@@ -38,20 +38,34 @@ sigma_interval^2`` (``velocity_correlation_time``, ``gyro_correlation_time``; fr
 integrated correlation time of the interval noise) and the estimators use ``sigma sqrt(tau)``
 (:func:`ekf.model.model_config`). With the "mean" pairing two intervals share a sample, so
 white samples give ``tau = 2``; the test's null is the samples', so that alone is not
-evidence. Drives shorter than ``MIN_BLOCKS`` blocks are not tested (too few sums to tell).
-The simulator's white noise keeps none; what real drives keep is in docs/findings.md.
+evidence. The simulator's white noise keeps none; what real drives keep is in docs/findings.md.
+
+What the blocks cannot determine (issue 34). Each axis's long-run sigma has its own
+uncertainty, ``sd(log sigma) = 1 / sqrt(2 n_blocks (1 - r))`` with ``r`` the posterior's share of
+the blocks' expected squared residuals at the fixed point (:mod:`graph.parameter_uncertainty`:
+a flat fixed point, where vision leaves the blocks to the posterior, has ``r`` near 1). An axis
+it leaves undetermined takes a conservative value instead of "white": the upper end of what the
+blocks allow, capped by a prior (a slow speed-scale error on the velocity axes; the gyro bias's
+uncertainty on the gyro axes), never below the estimate. A long-run level is undetermined
+above ``UNDETERMINED_LOG_SD`` (log 2 / 2: the blocks cannot place it within a factor of 2 at
+two standard deviations; a white level's line is stricter, graph.parameter_uncertainty). A
+drive of fewer than ``MIN_BLOCKS``
+blocks measures nothing: every axis takes its prior. A 25 s drive has 5 blocks, so even with
+``r = 0`` its sd is 0.32: short drives never determine their slow errors, and the prior speaks.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
 from scipy.optimize import nnls
 from scipy.stats import chi2
 
+from vislam.graph.parameter_uncertainty import (MAX_LOG_SD, conservative_level, log_sigma_sd,
+                                                 missing_fraction)
 from vislam.graph.pose_conversions import interval_jacobians, to_pose3
 
 log = logging.getLogger(__name__)
@@ -59,8 +73,20 @@ log = logging.getLogger(__name__)
 #: Block length in seconds: longer than the velocity errors' correlation (a few seconds on the
 #: drives measured, docs/findings.md), short enough for MIN_BLOCKS blocks on a two-minute drive.
 BLOCK_SECONDS = 5.0
-#: Fewer blocks than this: no test (the long-run variance of fewer sums is too uncertain).
-MIN_BLOCKS = 8
+#: Fewer blocks than this: nothing measured; every axis is undetermined and takes its prior.
+#: From two blocks on the long-run sigma is measured, and its own uncertainty
+#: (:mod:`graph.parameter_uncertainty`: ``1 / sqrt(2 n_blocks (1 - r))``) decides whether the
+#: drive determines it; a short drive's few blocks rarely do.
+MIN_BLOCKS = 2
+#: Above this sd(log sigma) a long-run level is undetermined: the blocks cannot place it within a
+#: factor of 2 at two standard deviations. (At graph.parameter_uncertainty's stricter line for
+#: white levels, 0.15, a drive needs 23 blocks with vision pinning every one: the 110 s
+#: 2019-edition drive of 0027 then took the prior on its forward axis, and its smoother's ATE
+#: went from 0.62 m to 0.75 m.)
+UNDETERMINED_LOG_SD = float(np.log(2.0) / 2.0)
+#: What an undetermined axis is capped by, in reports (gyro first, as AXES).
+PRIOR_WORDS = ("the gyro bias's uncertainty",) * 3 + (
+    "the prior on slow speed errors",) * 3
 #: One-sided level of the per-axis chi-square test against white samples: six axes are
 #: tested at once, so 0.999 keeps the chance of a white drive keeping one near 0.6 % (at 0.99
 #: a simulated white 80 s drive kept its vertical axis at a variance ratio of 2.9).
@@ -84,6 +110,8 @@ class BlockStatistics:
     expected: np.ndarray
     design: np.ndarray
     n_blocks: int
+    #: (6,) the posterior's part of ``expected`` (what the data leave unresolved)
+    posterior: np.ndarray | None = None
 
     @property
     def variance(self) -> np.ndarray:
@@ -110,6 +138,14 @@ class MotionCorrelation:
     tested: bool = False
     why: str = ""
     kept: tuple[str, ...] = ()
+    #: per axis, how well the drive determines its long-run sigma and the value taken
+    #: (:class:`graph.parameter_uncertainty.LevelUncertainty`)
+    levels: tuple = ()
+
+    @property
+    def undetermined(self) -> tuple[str, ...]:
+        """The axes whose long-run sigma the drive cannot determine."""
+        return tuple(lv.name.removesuffix(" long-run") for lv in self.levels if not lv.determined)
 
     @property
     def velocity_time(self) -> tuple[float, float, float] | None:
@@ -129,6 +165,8 @@ class MotionCorrelation:
                 "variance_ratio": lst(self.ratio), "correlation_time": lst(self.time),
                 "axes": list(AXES), "kept": list(self.kept), "solves": self.solves,
                 "converged": self.converged,
+                "levels": [lv.to_dict() for lv in self.levels],
+                "undetermined": list(self.undetermined),
                 "criterion": f"chi-square {LEVEL:g} on n_blocks dof against white samples"}
 
 
@@ -181,8 +219,8 @@ def block_statistics(solution, blocks: list[tuple[int, int]]) -> BlockStatistics
         design += np.sum(A * A, axis=0)
     Y = posterior_of.pose_solve(C.T)  # (H^-1)_pp C^T
     posterior = np.einsum("ij,ji->i", C, Y)  # diag of C H^-1 C^T
-    expected = np.sum(eps * eps, axis=0) + posterior.reshape(len(blocks), 6).sum(axis=0)
-    return BlockStatistics(expected, design, len(blocks))
+    posterior = posterior.reshape(len(blocks), 6).sum(axis=0)
+    return BlockStatistics(np.sum(eps * eps, axis=0) + posterior, design, len(blocks), posterior)
 
 
 def fixed_point(step, theta: np.ndarray, floor: np.ndarray, rtol: float = RTOL,
@@ -211,28 +249,41 @@ def fixed_point(step, theta: np.ndarray, floor: np.ndarray, rtol: float = RTOL,
     return theta, False
 
 
-def motion_correlation(solve, solution, interval_sigma: np.ndarray, sample_sigma: np.ndarray) -> MotionCorrelation:
+def motion_correlation(solve, solution, interval_sigma: np.ndarray, sample_sigma: np.ndarray,
+                       prior_sigma: np.ndarray | None = None) -> MotionCorrelation:
     """The long-run twist noise of a drive (module docstring).
 
     ``solve(sigma, warm)`` solves the smoother with interval sigmas ``sigma`` (6,) (GTSAM
     order), warm-started from the solution ``warm``; ``solution`` is the smoother EM ended with
     (at ``interval_sigma``, the white fit), ``sample_sigma`` (6,) the white per-sample sigmas
-    (the null and the floor)."""
+    (the null and the floor); ``prior_sigma`` (6,) the long-run interval sigma an undetermined
+    axis takes at most (:mod:`graph.parameter_uncertainty`: the speed-scale prior on the
+    velocity axes; on the gyro axes, the uncertainty of the gyro bias as a slow error of the
+    whole drive; 0 for none)."""
     interval_sigma = np.asarray(interval_sigma, dtype=float)
-    floor = np.log(np.asarray(sample_sigma, dtype=float))
+    sample_sigma = np.asarray(sample_sigma, dtype=float)
+    prior = np.zeros(6) if prior_sigma is None else np.asarray(prior_sigma, dtype=float)
+    floor = np.log(sample_sigma)
     blocks = block_bounds(solution.tau)
-    ones = np.ones(6)
     frames = blocks[0][1] - blocks[0][0] if blocks else 0
     if len(blocks) < MIN_BLOCKS:
-        return MotionCorrelation(ones, n_blocks=len(blocks), block_frames=frames,
+        # Nothing measured: every axis is undetermined and takes the prior (at least white).
+        levels = tuple(conservative_level(f"{a} long-run", s, MAX_LOG_SD, 1.0, p, w, floor=s)
+                       for a, s, p, w in zip(AXES, interval_sigma, prior, PRIOR_WORDS))
+        value = np.array([lv.value for lv in levels])
+        time = (value / interval_sigma) ** 2
+        return MotionCorrelation(time, value, n_blocks=len(blocks), block_frames=frames,
                                  why=f"{len(blocks)} blocks of {BLOCK_SECONDS:g} s, fewer than "
-                                     f"{MIN_BLOCKS}")
-    state = {"solution": solution, "solves": 0}
+                                     f"{MIN_BLOCKS}", levels=levels,
+                                 kept=tuple(a for a, t in zip(AXES, time) if t > 1.0))
+    state = {"solution": solution, "solves": 0, "stats": None, "theta": None}
 
     def step(theta: np.ndarray) -> np.ndarray:
         state["solution"] = solve(np.exp(theta), state["solution"])
         state["solves"] += 1
-        s2 = block_statistics(state["solution"], blocks).variance
+        state["stats"] = block_statistics(state["solution"], blocks)
+        state["theta"] = np.array(theta)
+        s2 = state["stats"].variance
         out = 0.5 * np.log(np.maximum(s2, 1e-30))
         log.info("motion correlation: interval sigma gyro %s, velocity %s -> blocks' gyro %s, "
                  "velocity %s", np.round(np.exp(theta[:3]), 5), np.round(np.exp(theta[3:]), 4),
@@ -244,12 +295,29 @@ def motion_correlation(solve, solution, interval_sigma: np.ndarray, sample_sigma
     ratio = (long_run / sample_sigma) ** 2
     n = len(blocks)
     threshold = float(chi2.ppf(LEVEL, n) / n)
-    keep = ratio > threshold
-    time = np.where(keep, (long_run / interval_sigma) ** 2, 1.0)
+    if not np.allclose(state["theta"], theta, rtol=0.0, atol=RTOL):
+        step(theta)  # the missing information is the EM map's slope at the fixed point itself
+    stats = state["stats"]
+    missing = missing_fraction(stats.posterior, stats.expected)
+    log_sd = log_sigma_sd(n, missing)
+    levels = []
+    for i, a in enumerate(AXES):
+        level = conservative_level(f"{a} long-run", long_run[i], log_sd[i], missing[i], prior[i],
+                                   PRIOR_WORDS[i], floor=interval_sigma[i],
+                                   undetermined_log_sd=UNDETERMINED_LOG_SD)
+        if level.determined and not ratio[i] > threshold:
+            # Determined and no larger than white samples allow: white (the test's null).
+            level = replace(level, value=float(interval_sigma[i]),
+                            why=f"{level.why}; not above white (variance ratio "
+                                f"{ratio[i]:.3g} against {threshold:.3g}): white")
+        levels.append(level)
+    value = np.array([lv.value for lv in levels])
+    time = np.maximum((value / interval_sigma) ** 2, 1.0)
     return MotionCorrelation(time, long_run, ratio, threshold, n, frames, state["solves"],
-                             converged, True, "", tuple(a for a, k in zip(AXES, keep) if k))
+                             converged, True, "", tuple(a for a, t in zip(AXES, time) if t > 1.0),
+                             tuple(levels))
 
 
 __all__ = ["BlockStatistics", "MotionCorrelation", "block_bounds", "block_residual",
            "block_statistics", "motion_correlation", "transport_jacobians", "BLOCK_SECONDS",
-           "MIN_BLOCKS", "LEVEL", "AXES"]
+           "MIN_BLOCKS", "LEVEL", "AXES", "UNDETERMINED_LOG_SD"]

@@ -168,6 +168,24 @@ def _motion_correlation_line(m: dict) -> str:
             f"({m['criterion']}): {kept}")
 
 
+def undetermined_lines(fit) -> list[str]:
+    """The noise levels the drive cannot determine, each with the value the model takes and
+    why (graph.parameter_uncertainty); a line saying so when every level is determined."""
+    levels = [lv.to_dict() for lv in fit.noise_levels]
+    levels += list(fit.motion_correlation_test.get("levels", []))
+    open_levels = [lv for lv in levels if not lv["determined"]]
+    if not levels:
+        return []
+    if not open_levels:
+        return ["noise levels: the drive determines every one (each is its estimate)"]
+    out = [f"noise levels the drive cannot determine ({len(open_levels)} of {len(levels)}; "
+           "the model takes a conservative value, never the estimate alone):"]
+    for lv in open_levels:
+        out.append(f"  {lv['name']}: estimate {lv['estimate']:.3g}, the model takes "
+                   f"{lv['value']:.3g} ({lv['why']})")
+    return out
+
+
 def report(name: str, frames: int, fit, config) -> str:
     """The identified model beside the settings it replaces, and a verdict per quantity."""
     from vislam.ekf.model import EXTRINSIC_COMPONENTS, long_run_pixel_sigma
@@ -180,9 +198,11 @@ def report(name: str, frames: int, fit, config) -> str:
         "",
         "| quantity | identified | sigma | file / settings as given |",
         "|---|---|---|---|",
-        f"| velocity sigma x y z (m/s) | {_fmt(fit.velocity_sigma)} | {_fmt(fit.velocity_sigma_std, 2)} "
+        f"| velocity sigma x y z (m/s) | {_fmt(fit.velocity_sigma)} | "
+        f"{_fmt(fit.velocity_sigma_std, 2)} "
         f"| {_fmt(given_v)} |",
-        f"| gyro sigma x y z (rad/s) | {_fmt(fit.gyro_sigma)} | {_fmt(fit.gyro_sigma_std, 2)} "
+        f"| gyro sigma x y z (rad/s) | {_fmt(fit.gyro_sigma)} | "
+        f"{_fmt(fit.gyro_sigma_std, 2)} "
         f"| {_fmt(given_g)} |",
         f"| pixel sigma (px) | {fit.pixel_sigma:.4g} | {fit.pixel_sigma_std:.2g} | {config.pixel_sigma:.4g} |",
         f"| pixel error correlation time along a track (frames) | "
@@ -251,6 +271,7 @@ def report(name: str, frames: int, fit, config) -> str:
         lines.append(f"extrinsic: the drive cannot determine {names} "
                      f"(of {', '.join(EXTRINSIC_COMPONENTS)}); the file's value is kept there")
     lines += _verdict(fit)
+    lines += undetermined_lines(fit)
     for what, found, given in (("velocity sigma", fit.velocity_sigma, given_v),
                                ("gyro sigma", fit.gyro_sigma, given_g),
                                ("pixel sigma", [fit.pixel_sigma], [config.pixel_sigma])):
