@@ -132,7 +132,7 @@ class SimConfig:
     #: the platform's waypoints where it stops (1-4 s at zero velocity).
     room_size: tuple[float, float] = (10.0, 8.0)
     room_landmarks: int = 50
-    stop_probability: float = 0.3
+    stop_probability: float = 0.5
     #: loop: the share of the loop driven a second time at the end of the drive (the drive is
     #: ``1 + loop_overlap`` laps).
     loop_overlap: float = 0.15

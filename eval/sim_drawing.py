@@ -82,7 +82,7 @@ ROOM_MARGIN_M = 2.0
 #: room: the platform's largest linear (m/s^2) and angular (rad/s^2) acceleration.
 ROOM_ACCEL = (0.5, 1.0)
 #: room: the share of waypoints where the platform looks round on the spot.
-ROOM_LOOK_ROUND = 0.7
+ROOM_LOOK_ROUND = 0.9
 #: room: landmarks stand within this height (m) above or below the camera's.
 ROOM_LANDMARK_BAND_M = 0.6
 #: loop: the corners' radius is at most this (m), and their curvature ramps in over a quarter
