@@ -118,6 +118,11 @@ def repeat_mask(obs: Observations) -> np.ndarray:
 
 #: A return is judged only where at least this many other tracks are seen in both frames.
 RETURN_MIN_COMMON = 4
+#: A return is judged only where the fit of the others predicts its point to within this (m,
+#: one sigma, first order): where they barely pin the motion down, the first order is no guide.
+RETURN_MAX_FIT_M = 0.2
+#: ... and split only when its point is also this far (m) from where the fit puts it.
+RETURN_MIN_JUMP_M = 0.5
 #: Returns after a gap shorter than this (s) are not judged: the tracker's own short losses
 #: (most returns of a loop drive; judging them would cost more than the estimators).
 RETURN_MIN_GAP_S = 1.0
@@ -137,7 +142,8 @@ def inconsistent_returns(seq: Sequence) -> np.ndarray:
     seen in by the rigid motion that the other tracks seen in both frames give (least squares,
     scipy's Kabsch, refitted once without the others that do not fit), is further from its point
     at ``a`` than both points' stereo covariances (RETURN_PIXEL_SIGMA) and the fit's own error
-    allow (RETURN_CHI2). A return is never split when its gap is shorter than RETURN_MIN_GAP_S,
+    allow (RETURN_CHI2) and by at least RETURN_MIN_JUMP_M. A return is never split when its gap
+    is shorter than RETURN_MIN_GAP_S, when the fit predicts its point only to RETURN_MAX_FIT_M,
     when fewer than RETURN_MIN_COMMON other tracks are seen in both frames, or when either point
     has a disparity below RETURN_MIN_DISPARITY (the others too take part only above it)."""
     from scipy.spatial.transform import Rotation
@@ -192,9 +198,13 @@ def inconsistent_returns(seq: Sequence) -> np.ndarray:
         bread = np.linalg.pinv(np.einsum("nji,njk->ik", J, J), hermitian=True)
         meat = np.einsum("nji,njk,nkl->il", J, cov[fitted], J)
         J_r = np.concatenate([-hat(R @ (pts[r_b] - cb)), np.eye(3)], axis=1)
+        fit_cov = J_r @ bread @ meat @ bread @ J_r.T
+        if np.trace(fit_cov) > RETURN_MAX_FIT_M**2:
+            continue  # the others do not pin the motion down at this point
         d = R @ (pts[r_b] - cb) + ca - pts[r_a]
-        S = R @ covs[r_b] @ R.T + covs[r_a] + J_r @ bread @ meat @ bread @ J_r.T
-        out[r_b] = float(d @ np.linalg.solve(S, d)) > RETURN_CHI2
+        S = R @ covs[r_b] @ R.T + covs[r_a] + fit_cov
+        out[r_b] = (float(d @ np.linalg.solve(S, d)) > RETURN_CHI2
+                    and float(np.linalg.norm(d)) > RETURN_MIN_JUMP_M)
     return out
 
 
