@@ -50,7 +50,8 @@ MAX_CARRIED = 100
 def carried_gaps(seq: Sequence, max_carried: int = MAX_CARRIED) -> tuple[np.ndarray, np.ndarray]:
     """The gaps of ``seq``'s tracks and whether each is carried (module docstring).
 
-    Returns the observation rows where a track returns after a gap (N_gaps,), by track, then frame),
+    Returns the observation rows where a track returns after a gap (N_gaps,; by track, then
+    frame),
     and a bool per gap: True when the landmark is carried through the gap, False when more than
     ``max_carried`` landmarks were in gaps at some frame of it and it was among those unseen the
     longest (ties: the lower track index first)."""
