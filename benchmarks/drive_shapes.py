@@ -33,7 +33,10 @@ import threading
 import time
 from pathlib import Path
 
-import psutil
+try:  # the process tree's memory (ipython's and distributed's dependency: there with '.[test]')
+    import psutil
+except ImportError:  # pragma: no cover
+    psutil = None
 
 ESTIMATORS = ("dead-reckoning", "mapping", "ekf-decoupled", "ekf-joint", "ekf-invariant",
               "smoother", "smoother-isam2")
@@ -65,7 +68,8 @@ def measured(cmd: list[str], env: dict | None = None) -> dict:
     start = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     stop, peak = threading.Event(), []
-    watcher = threading.Thread(target=_tree_peak, args=(psutil.Process(proc.pid), stop, peak))
+    watcher = threading.Thread(target=_tree_peak, args=(psutil.Process(proc.pid), stop, peak)) \
+        if psutil is not None else threading.Thread(target=stop.wait)
     watcher.start()
     out, err = proc.communicate()
     wall = time.perf_counter() - start
@@ -101,7 +105,7 @@ def child(what: str, scenario: str, frames: int, seed: int) -> None:
     """One measurement in this process; prints its JSON line."""
     t0, c0 = time.perf_counter(), time.process_time()
     result, seq, config = _drive(scenario, frames, seed)
-    rss_drive = psutil.Process().memory_info().rss / 1024.0**2
+    rss_drive = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     t1, c1 = time.perf_counter(), time.process_time()
     info: dict = {}
     if what == "calibrate":  # as vislam bench identifies a drive (eval.model_cache)
