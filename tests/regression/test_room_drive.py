@@ -38,15 +38,11 @@ def test_identification_recovers_the_room_noise_levels(room_study):
     result, model, _ = room_study
     truth = result.model
     assert model.velocity_pairing == truth.velocity_pairing
-    # The planar platform's well-observed axes (forward and sideways velocity, yaw rate) and the
-    # pixels within 10 %; the others pinned where they are (graph.identification's known limit
-    # of the mean pairing: weakly observed axes come out high).
-    np.testing.assert_allclose(model.velocity_sigma[1], truth.velocity_sigma[1], rtol=0.10)
-    np.testing.assert_allclose(model.gyro_sigma[2], truth.gyro_sigma[2], rtol=0.10)
+    # Every sigma within 10 % (measured at 600 frames: velocity +8 +1 +9.5 %, gyro +9 -4 +3 %,
+    # pixels +1 %; at 2,000 frames at most +9 %, benchmarks/drive_shapes.py).
+    np.testing.assert_allclose(model.velocity_sigma, truth.velocity_sigma, rtol=0.10)
+    np.testing.assert_allclose(model.gyro_sigma, truth.gyro_sigma, rtol=0.10)
     np.testing.assert_allclose(model.pixel_sigma, truth.pixel_sigma, rtol=0.10)
-    ratio = np.r_[np.asarray(model.velocity_sigma) / truth.velocity_sigma,
-                  np.asarray(model.gyro_sigma) / truth.gyro_sigma]
-    assert np.all((ratio > 0.9) & (ratio < 1.3)), ratio
 
 
 def test_the_smoother_is_consistent_on_the_room(room_study):
