@@ -183,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-bench", action="store_true", help="estimators and calibrate only")
     parser.add_argument("--no-estimators", action="store_true", help="vislam bench only")
+    parser.add_argument("--no-calibrate", action="store_true", help="no identification alone")
     parser.add_argument("--estimators", default=",".join(ESTIMATORS))
     parser.add_argument("--child", nargs=3, metavar=("WHAT", "SCENARIO", "FRAMES"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -207,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
                       if nees is not None else sigma_errors(found, truth)), flush=True)
         if args.no_estimators:
             continue
-        for what in ["drive", "calibrate", *args.estimators.split(",")]:
+        for what in ["drive", *([] if args.no_calibrate else ["calibrate"]), *args.estimators.split(",")]:
             cmd = [sys.executable, __file__, "--seed", str(args.seed), "--child", what, scenario, str(frames)]
             m = measured(cmd)
             got = json.loads(m["stdout"].strip().splitlines()[-1])
