@@ -10,6 +10,14 @@ Stereo observations with non-positive or tiny disparity ``uL - uR`` (down to abo
 the shared data) cannot be triangulated and are rejected here too, as are points beyond
 ``max_depth`` if given. Both estimators call :func:`clean_sequence` before estimating.
 
+A track that comes back after a gap (a room, a loop, a tracker that recognises a landmark it
+saw before) is one landmark, and cleaning keeps it one track, unless its pixels say otherwise: an
+observation equal to the track's previous one is a repeat (after a gap too: with pixel noise
+the same four pixels are never seen twice), and a track's return is split off as a new track only when its stereo point does not fit the
+point it left, in the rigid motion between the two frames that the other tracks seen in both
+give (:func:`inconsistent_returns`). The KITTI drives' tracks have no gaps: none of this
+changes them.
+
 Track numbering after a split: the first part of a track keeps its index; later parts get new
 indices ``n_tracks, n_tracks + 1, ...`` in order of their first frame, and ``track_origin``
 keeps the column of the source file each one came from.
@@ -23,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vislam.ekf.geometry import hat
 from vislam.ekf.sequence import Observations, Sequence
 
 log = logging.getLogger(__name__)
@@ -107,6 +116,98 @@ def repeat_mask(obs: Observations) -> np.ndarray:
     return rep
 
 
+#: A return is judged only where at least this many other tracks are seen in both frames.
+RETURN_MIN_COMMON = 4
+#: A return is judged only where the fit of the others predicts its point to within this (m,
+#: one sigma, first order): where they barely pin the motion down, the first order is no guide.
+RETURN_MAX_FIT_M = 0.2
+#: ... and split only when its point is also this far (m) from where the fit puts it.
+RETURN_MIN_JUMP_M = 0.5
+#: Returns after a gap shorter than this (s) are not judged: the tracker's own short losses
+#: (most returns of a loop drive; judging them would cost more than the estimators).
+RETURN_MIN_GAP_S = 1.0
+#: Only points of at least this disparity (px) take part in judging a return: below it the
+#: stereo depth is too far from Gaussian for a first-order covariance.
+RETURN_MIN_DISPARITY = 20.0
+#: Pixel sigma (px) the judgement of a return assumes: generous, as the model is not known yet.
+RETURN_PIXEL_SIGMA = 2.0
+#: A return is inconsistent when its squared Mahalanobis distance exceeds this (chi-square,
+#: 3 dof, probability 1e-6 of a consistent one being split).
+RETURN_CHI2 = 30.66
+
+
+def inconsistent_returns(seq: Sequence) -> np.ndarray:
+    """(N,) True at the observation where a track comes back after a gap with pixels that do not
+    fit it: its stereo point at the return frame ``b``, moved into the frame ``a`` it was last
+    seen in by the rigid motion that the other tracks seen in both frames give (least squares,
+    scipy's Kabsch, refitted once without the others that do not fit), is further from its point
+    at ``a`` than both points' stereo covariances (RETURN_PIXEL_SIGMA) and the fit's own error
+    allow (RETURN_CHI2) and by at least RETURN_MIN_JUMP_M. A return is never split when its gap
+    is shorter than RETURN_MIN_GAP_S, when the fit predicts its point only to RETURN_MAX_FIT_M,
+    when fewer than RETURN_MIN_COMMON other tracks are seen in both frames, or when either point
+    has a disparity below RETURN_MIN_DISPARITY (the others too take part only above it)."""
+    from scipy.spatial.transform import Rotation
+
+    from vislam.ekf.camera import triangulate
+
+    obs = seq.obs
+    out = np.zeros(len(obs), dtype=bool)
+    order, frame = _track_order(obs)
+    t, f = obs.track[order], frame[order]
+    stamps = np.asarray(seq.timestamps, dtype=float)
+    back = np.flatnonzero((t[1:] == t[:-1]) & (f[1:] - f[:-1] > 1)
+                          & (stamps[f[1:]] - stamps[f[:-1]] >= RETURN_MIN_GAP_S)) + 1
+    if back.size == 0:
+        return out
+    cal = seq.calibration
+    z = obs.z
+    ok_disp = z[:, 0] - z[:, 2] >= RETURN_MIN_DISPARITY
+    pts = np.full((len(obs), 3), np.nan)
+    covs = np.full((len(obs), 3, 3), np.nan)
+    pts[ok_disp], covs[ok_disp] = triangulate(z[ok_disp], cal.K, cal.baseline,
+                                              RETURN_PIXEL_SIGMA**2 * np.eye(4))
+    ptr = obs.frame_ptr
+    for i in back:
+        r_b, r_a = order[i], order[i - 1]
+        if not (ok_disp[r_a] and ok_disp[r_b]):
+            continue
+        a, b, j = int(f[i - 1]), int(f[i]), int(t[i])
+        ta, tb = obs.track[ptr[a]:ptr[a + 1]], obs.track[ptr[b]:ptr[b + 1]]
+        common, ia, ib = np.intersect1d(ta, tb, assume_unique=True, return_indices=True)
+        keep = (common != j) & ok_disp[ptr[a] + ia] & ok_disp[ptr[b] + ib]
+        if keep.sum() < RETURN_MIN_COMMON:
+            continue
+        rows_a, rows_b = ptr[a] + ia[keep], ptr[b] + ib[keep]
+        pa, pb = pts[rows_a], pts[rows_b]
+        use = np.ones(pa.shape[0], dtype=bool)
+        for _ in range(2):  # fit, then refit without the others that do not fit
+            ca, cb = pa[use].mean(axis=0), pb[use].mean(axis=0)
+            R = Rotation.align_vectors(pa[use] - ca, pb[use] - cb)[0].as_matrix()
+            res = (pb - cb) @ R.T + ca - pa
+            cov = covs[rows_a] + R @ covs[rows_b] @ R.T
+            fits = np.einsum("ni,ni->n", res, np.linalg.solve(cov, res[..., None])[..., 0])
+            fitted, use = use, fits <= RETURN_CHI2
+            if use.sum() < RETURN_MIN_COMMON:
+                break
+        if use.sum() < RETURN_MIN_COMMON:
+            continue
+        # The fit's own error (least squares' sandwich: (J^T J)^-1 J^T cov J (J^T J)^-1 with
+        # J = [-(R q)^, I] per point, q about the centroid; large where the others are nearly
+        # on a line) carried to the returning point.
+        J = np.concatenate([-hat((pb[fitted] - cb) @ R.T), np.broadcast_to(np.eye(3), (int(fitted.sum()), 3, 3))], axis=2)
+        bread = np.linalg.pinv(np.einsum("nji,njk->ik", J, J), hermitian=True)
+        meat = np.einsum("nji,njk,nkl->il", J, cov[fitted], J)
+        J_r = np.concatenate([-hat(R @ (pts[r_b] - cb)), np.eye(3)], axis=1)
+        fit_cov = J_r @ bread @ meat @ bread @ J_r.T
+        if np.trace(fit_cov) > RETURN_MAX_FIT_M**2:
+            continue  # the others do not pin the motion down at this point
+        d = R @ (pts[r_b] - cb) + ca - pts[r_a]
+        S = R @ covs[r_b] @ R.T + covs[r_a] + fit_cov
+        out[r_b] = (float(d @ np.linalg.solve(S, d)) > RETURN_CHI2
+                    and float(np.linalg.norm(d)) > RETURN_MIN_JUMP_M)
+    return out
+
+
 def find_repeat_events(
     seq: Sequence,
     min_repeats: int = EVENT_MIN_REPEATS,
@@ -135,7 +236,8 @@ def clean_sequence(
     min_disparity: float = 1.0,
     max_depth: float | None = None,
 ) -> tuple[Sequence, CleaningReport]:
-    """Split tracks at exact repeats and reject unusable disparities (see the module notes).
+    """Split tracks at exact repeats and at inconsistent returns after a gap, and reject unusable
+    disparities (see the module notes).
 
     ``split_repeats=False`` keeps tracks as given (repeats are still counted, not dropped).
     Observations with disparity ``uL - uR <= 0`` or ``< min_disparity`` (px) are rejected, and,
@@ -156,11 +258,16 @@ def clean_sequence(
     n_tracks = seq.n_tracks
     origin = np.asarray(seq.track_origin, dtype=np.int64)
     n_split = n_new = 0
-    if split_repeats and rep.any():
+    cut = inconsistent_returns(seq) if split_repeats else np.zeros(n_in, dtype=bool)
+    if cut.any():
+        log.info("cleaning %s: %d tracks come back with pixels that do not fit them: split",
+                 seq.name, int(cut.sum()))
+    if split_repeats and (rep.any() or cut.any()):
         keep &= ~rep
-        # Part index of each observation within its track: repeats seen so far in the track.
+        # Part index of each observation within its track: repeats (dropped) and inconsistent
+        # returns (kept, the first of their part) seen so far in the track.
         order = np.lexsort((frame, track))
-        rep_s = rep[order]
+        rep_s = (rep | cut)[order]
         t_s = track[order]
         count = np.cumsum(rep_s)
         start = np.flatnonzero(np.r_[True, t_s[1:] != t_s[:-1]])

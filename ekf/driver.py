@@ -5,9 +5,26 @@ user's filter) runs through this loop and gets the same Estimate: validation and
 first (:func:`ekf.runner.prepare_sequence`), BLAS pinned (:func:`ekf.runner.blas_limits`), per-frame
 wall time and counters, numerical rejections counted in ``info`` and the estimator contract's
 finiteness checks (:func:`ekf.runner.finish_estimate`).
+
+**Tracks that come back.** A track is *ended* (``marginalise``) only after its last observation
+in the drive, so a track seen again after a gap (a room, a loop, a tracker that recognises a
+landmark) keeps its landmark in the filter's state through the gap and is updated with it when
+it returns: the same landmark, with every correlation the filter holds. To bound the state, at
+most ``max_carried`` landmarks are carried through gaps at once (MAX_CARRIED by default): when
+more are, those unseen the longest are ended at their last observation before the gap, and the
+track's observations after it become a new track index (:func:`carry_tracks`), a new landmark
+(re-initialising it from its old estimate without that estimate's correlations to the state
+would be inconsistent). The new indices follow the sequence's, ``track_origin`` names the
+source column of each (as track cleaning's splits do), and ``info["n_carry_splits"]`` counts
+them. The KITTI drives' tracks never come back, except across a rejected observation or two.
 """
 
 from __future__ import annotations
+
+import dataclasses
+import heapq
+
+import numpy as np
 
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.estimate import Estimate
@@ -23,7 +40,97 @@ from vislam.ekf.runner import (
     report_progress,
     tracks_ending,
 )
-from vislam.ekf.sequence import Sequence
+from vislam.ekf.sequence import Observations, Sequence
+
+#: The most landmarks a per-frame filter carries through their tracks' gaps at once (module
+#: docstring): a room's few dozen landmarks are all carried; a long loop's are not.
+MAX_CARRIED = 100
+
+
+def carried_gaps(seq: Sequence, max_carried: int = MAX_CARRIED) -> tuple[np.ndarray, np.ndarray]:
+    """The gaps of ``seq``'s tracks and whether each is carried (module docstring).
+
+    Returns the observation rows where a track returns after a gap (N_gaps,; by track, then
+    frame),
+    and a bool per gap: True when the landmark is carried through the gap, False when more than
+    ``max_carried`` landmarks were in gaps at some frame of it and it was among those unseen the
+    longest (ties: the lower track index first)."""
+    obs = seq.obs
+    frame = obs.frame_index
+    order = np.lexsort((frame, obs.track))
+    t, f = obs.track[order], frame[order]
+    back = np.flatnonzero((t[1:] == t[:-1]) & (f[1:] - f[:-1] > 1)) + 1
+    rows = order[back]
+    carried = np.ones(back.size, dtype=bool)
+    if back.size <= max_carried:
+        return rows, carried
+    last_seen, returns = f[back - 1], f[back]
+    starts = np.argsort(last_seen, kind="stable")  # a gap opens the frame after last_seen
+    heap: list[tuple[int, int, int]] = []
+    open_now = np.zeros(back.size, dtype=bool)
+    ends = np.argsort(returns, kind="stable")
+    n_open = i_start = i_end = 0
+    for k in np.unique(last_seen + 1):
+        while i_end < ends.size and returns[ends[i_end]] <= k:  # returned by frame k
+            g = ends[i_end]
+            if open_now[g]:
+                open_now[g] = False
+                n_open -= 1
+            i_end += 1
+        while i_start < starts.size and last_seen[starts[i_start]] + 1 == k:
+            g = starts[i_start]
+            if returns[g] > k:
+                open_now[g] = True
+                n_open += 1
+                heapq.heappush(heap, (int(last_seen[g]), int(t[back[g]]), int(g)))
+            i_start += 1
+        while n_open > max_carried:
+            _, _, g = heapq.heappop(heap)
+            if open_now[g]:
+                open_now[g] = False
+                carried[g] = False
+                n_open -= 1
+    return rows, carried
+
+
+def carry_tracks(seq: Sequence, max_carried: int = MAX_CARRIED) -> tuple[Sequence, int]:
+    """``seq`` with each gap that is not carried (:func:`carried_gaps`) splitting its track: the
+    observations after it take a new track index (``n_tracks``, ``n_tracks + 1``, ... in order of
+    their first frame, then of the track split), ``track_origin`` extended to them. Returns
+    ``(seq, number of splits)``; ``seq`` itself when every gap is carried."""
+    rows, carried = carried_gaps(seq, max_carried)
+    cut = rows[~carried]
+    if cut.size == 0:
+        return seq, 0
+    obs = seq.obs
+    frame = obs.frame_index
+    order = np.lexsort((frame, obs.track))
+    starts_piece = np.zeros(len(obs), dtype=np.int64)
+    starts_piece[cut] = 1
+    s = starts_piece[order]
+    t = obs.track[order]
+    first = np.flatnonzero(np.r_[True, t[1:] != t[:-1]])
+    count = np.cumsum(s)
+    piece_sorted = count - np.repeat(count[first] - s[first], np.diff(np.r_[first, t.size]))
+    piece = np.empty_like(piece_sorted)
+    piece[order] = piece_sorted
+    track = obs.track.copy()
+    later = piece > 0
+    base = int(piece.max()) + 1
+    uniq, inv = np.unique(obs.track[later] * base + piece[later], return_inverse=True)
+    first_frame = np.full(uniq.size, np.iinfo(np.int64).max, dtype=np.int64)
+    np.minimum.at(first_frame, inv, frame[later])
+    parent = uniq // base
+    rank = np.empty(uniq.size, dtype=np.int64)
+    rank[np.lexsort((parent, first_frame))] = np.arange(uniq.size)
+    track[later] = seq.n_tracks + rank[inv]
+    origin = np.asarray(seq.track_origin, dtype=np.int64)
+    origin = np.concatenate([origin, origin[parent[np.argsort(rank)]]])
+    split = dataclasses.replace(
+        seq, obs=Observations.from_rows(frame, track, obs.z, seq.n_frames),
+        n_tracks=seq.n_tracks + int(uniq.size), track_origin=origin,
+    )
+    return split, int(cut.size)
 
 
 def filter_name(filt) -> str:
@@ -43,13 +150,19 @@ def run_filter(
     config: FilterConfig = FilterConfig(),
     progress: Progress = None,
     name: str | None = None,
+    max_carried: int = MAX_CARRIED,
 ) -> Estimate:
     """Run ``filt`` over ``seq`` (:mod:`ekf.filter` for the order of the calls) and return its
     Estimate, named ``name`` (default :func:`filter_name`).
 
     ``progress(frames done)`` is called every 10 frames and after the last. An EstimationError
-    a filter raises (through its guard) ends the run."""
+    a filter raises (through its guard) ends the run. ``max_carried``: the most landmarks carried
+    through their tracks' gaps at once (module docstring)."""
     seq, info = prepare_sequence(seq, config)
+    seq, n_splits = carry_tracks(seq, max_carried)
+    if n_splits:
+        info["n_carry_splits"] = n_splits
+        info["track_origin"] = np.asarray(seq.track_origin, dtype=np.int64).tolist()
     name = name or filter_name(filt)
     guard = NumericalGuard(name, seq.timestamps)
     rec = StepRecorder(seq.n_frames)

@@ -74,6 +74,155 @@ def integrate_mean_pairing(twists: np.ndarray, dt: np.ndarray) -> np.ndarray:
     return poses
 
 
+# --------------------------------------------------------------------------- room and loop
+
+#: room: the platform's waypoints keep this far from the walls (m), so that the camera (about
+#: 1.4 m from the IMU) stays inside the room.
+ROOM_MARGIN_M = 2.0
+#: room: the platform's largest linear (m/s^2) and angular (rad/s^2) acceleration.
+ROOM_ACCEL = (0.5, 1.0)
+#: room: the share of waypoints where the platform looks round on the spot.
+ROOM_LOOK_ROUND = 0.9
+#: room: landmarks stand within this height (m) above or below the camera's.
+ROOM_LANDMARK_BAND_M = 0.6
+#: loop: the corners' radius is at most this (m), and their curvature ramps in over a quarter
+#: of it (a clothoid-like entry, so the yaw rate has no jump).
+LOOP_MAX_RADIUS_M = 60.0
+
+
+def _wrap(angle: float) -> float:
+    return float((angle + np.pi) % (2.0 * np.pi) - np.pi)
+
+
+def room_drive(config: SimConfig, rng, n: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Twists (n, 6) and poses (n, 4, 4) of a platform on the floor of a room: planar motion
+    with yaw (body x forward, z up), driving round the room through random waypoints, one per
+quadrant in turn (each lap either way round, at random), at up to ``speed_max`` m/s
+    (slower while it turns, turning on the spot when a waypoint is behind it), yaw rate up to
+    ``max_yaw_rate``, accelerations bounded (ROOM_ACCEL). At a share ``stop_probability`` of
+    the waypoints it stops for 1-4 s (twists exactly zero), and at a share ROOM_LOOK_ROUND it looks round,
+turning 180-360 degrees on the spot. Each step's twist is chosen from the
+    pose so far, and the pose follows by the mean pairing (:func:`integrate_mean_pairing`)."""
+    half = np.asarray(config.room_size) / 2.0 - ROOM_MARGIN_M
+    half = np.maximum(half, 0.25)
+    accel, yaw_accel = ROOM_ACCEL[0] * dt, ROOM_ACCEL[1] * dt
+    u = np.zeros((n, 6))
+    poses = np.empty((n, 4, 4))
+    poses[0] = np.eye(4)
+    quadrant = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
+    lap_step, visited = 1, 0
+
+    def next_waypoint(i: int) -> np.ndarray:  # a random point of quadrant i (mod 4)
+        return quadrant[i % 4] * rng.uniform(0.2 * half, half)
+
+    waypoint = next_waypoint(0)
+    stop_left, spin_left = 0, 0.0
+    v = w = 0.0
+    for k in range(n - 1):
+        pose = poses[k]
+        if stop_left > 0:
+            v_goal = w_goal = 0.0
+            if v == 0.0 and w == 0.0:
+                stop_left -= 1
+        elif abs(spin_left) > 0.05:  # looking round on the spot
+            v_goal = 0.0
+            w_goal = float(np.sign(spin_left) * min(config.max_yaw_rate, 1.5 * abs(spin_left)))
+            spin_left -= dt * w
+        else:
+            d = waypoint - pose[:2, 3]
+            dist = float(np.hypot(d[0], d[1]))
+            if dist < 0.3:
+                visited += 1
+                if visited % 4 == 0:  # a lap of the room done: the next goes either way round
+                    lap_step = 1 if rng.random() < 0.5 else -1
+                waypoint = next_waypoint(visited * lap_step)
+                if rng.random() < config.stop_probability:
+                    stop_left = int(rng.integers(int(round(1.0 / dt)), int(round(4.0 / dt)) + 1))
+                if rng.random() < ROOM_LOOK_ROUND:
+                    spin_left = float(rng.choice([-1.0, 1.0]) * rng.uniform(np.pi, 2.0 * np.pi))
+                d = waypoint - pose[:2, 3]
+                dist = float(np.hypot(d[0], d[1]))
+            err = _wrap(np.arctan2(d[1], d[0]) - np.arctan2(pose[1, 0], pose[0, 0]))
+            w_goal = float(np.clip(1.5 * err, -config.max_yaw_rate, config.max_yaw_rate))
+            v_goal = config.speed_max * max(0.0, np.cos(err)) ** 2 * min(1.0, dist)
+        v += float(np.clip(v_goal - v, -accel, accel))
+        w += float(np.clip(w_goal - w, -yaw_accel, yaw_accel))
+        u[k + 1, 0], u[k + 1, 5] = v, w
+        poses[k + 1] = pose @ se3_exp(dt * 0.5 * (u[k] + u[k + 1]))
+    return u, poses
+
+
+def room_landmarks(config: SimConfig, rng, camera_z: float) -> np.ndarray:
+    """``room_landmarks`` points (n, 3) on the room's four walls (uniform along them), within
+    ROOM_LANDMARK_BAND_M of the camera's height ``camera_z``."""
+    sx, sy = config.room_size
+    n = config.room_landmarks
+    s = rng.uniform(0.0, 2.0 * (sx + sy), n)  # along the walls, anticlockwise from (-x, -y)
+    corner = np.array([[-sx / 2, -sy / 2], [sx / 2, -sy / 2], [sx / 2, sy / 2], [-sx / 2, sy / 2]])
+    edge = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    ends = np.cumsum([sx, sy, sx, sy])
+    wall = np.minimum(np.searchsorted(ends, s, side="right"), 3)
+    along = s - np.r_[0.0, ends][wall]
+    xy = corner[wall] + along[:, None] * edge[wall]
+    z = camera_z + rng.uniform(-ROOM_LANDMARK_BAND_M, ROOM_LANDMARK_BAND_M, n)
+    return np.column_stack([xy, z])
+
+
+def loop_curvature(s: np.ndarray, lap: float) -> np.ndarray:
+    """Curvature (1/m) at arc lengths ``s`` of a closed loop of length ``lap``: a rounded
+    rectangle (sides 0.3 and 0.2 of the straight length, turning left), its corners of radius
+    ``min(LOOP_MAX_RADIUS_M, lap / 4 pi)`` entered and left on linear ramps of a quarter radius.
+    Each corner turns exactly pi/2 and the shape is symmetric, so the loop closes."""
+    r = min(LOOP_MAX_RADIUS_M, lap / (4.0 * np.pi))
+    ramp = r / 4.0
+    plateau = np.pi * r / 2.0 - ramp
+    corner = plateau + 2.0 * ramp
+    straight = lap - 4.0 * corner
+    sides = (0.3 * straight, 0.2 * straight, 0.3 * straight, 0.2 * straight)
+    x = np.mod(s, lap)
+    out = np.zeros_like(x)
+    start = 0.0
+    for side in sides:
+        c = x - (start + side)  # position within the corner after this side
+        inside = (c >= 0.0) & (c < corner)
+        rise = np.clip(c / ramp, 0.0, 1.0)
+        fall = np.clip((corner - c) / ramp, 0.0, 1.0)
+        out = np.where(inside, np.minimum(rise, fall) / r, out)
+        start += side + corner
+    return out
+
+
+def loop_drive(config: SimConfig, rng, t: np.ndarray, n_frames: int):
+    """Twists (n, 6), poses (n, 4, 4) and the lap's length (m) of a car driving a flat closed
+    loop (:func:`loop_curvature`) at a smooth random speed in ``[speed_min, speed_max]``: the
+    lap is sized so that the first ``n_frames`` frames drive ``1 + loop_overlap`` laps, so the
+    drive comes back to its start and drives the start again. Yaw rate is curvature times
+    speed at the arc length the mean pairing gives."""
+    span = float(t[-1]) + 1.0
+    speed = smooth_profile(
+        rng, span, config.knot_spacing_s, lambda n: rng.uniform(config.speed_min, config.speed_max, n)
+    )
+    v = speed(t)
+    dt = np.diff(t)
+    s = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * dt)])
+    lap = float(s[n_frames - 1]) / (1.0 + config.loop_overlap)
+    u = np.zeros((t.size, 6))
+    u[:, 0] = v
+    u[:, 5] = loop_curvature(s, lap) * v
+    return u, integrate_mean_pairing(u, dt), lap
+
+
+def nearby_points(points: np.ndarray, positions: np.ndarray, radius: float):
+    """``candidates(k)`` of :func:`observe_landmarks`: the points (sorted indices) within
+    ``radius`` of ``positions[k]``."""
+
+    def candidates(k: int) -> np.ndarray:
+        d = points - positions[k]
+        return np.flatnonzero(np.einsum("ij,ij->i", d, d) <= radius * radius)
+
+    return candidates
+
+
 # --------------------------------------------------------------------------- landmarks
 
 
@@ -131,10 +280,15 @@ def drifting_noise(white: np.ndarray, previous: np.ndarray, continuing: np.ndarr
 
 def observe_landmarks(
     config: SimConfig, rng_tracks, rng_pixels, poses, points, point_arc, calib: Calibration,
-    repeat_frames: np.ndarray | None = None,
+    repeat_frames: np.ndarray | None = None, candidates=None, same_track: bool = False,
 ):
     """Run the tracker over the first ``len(poses)`` frames; at ``repeat_frames`` (bool per
     frame) every continuing track repeats its previous observation exactly.
+
+    ``candidates(k)`` the indices (sorted) of the landmarks looked at in frame ``k``; None: those
+    within WINDOW_M of path length (``point_arc``, the road). ``same_track``: a landmark seen
+    again after its track ended continues that track (the same index: a tracker that recognises
+    it), instead of starting a new one.
 
     Returns rows (frame, track, z) of the observations, the noise-free pixels of those rows,
     and the landmark of each track index.
@@ -161,8 +315,12 @@ def observe_landmarks(
     lo_all = np.searchsorted(point_arc, arc - WINDOW_M, side="left")
     hi_all = np.searchsorted(point_arc, arc + WINDOW_M, side="right")
     for k in range(poses.shape[0]):
-        lo, hi = int(lo_all[k]), int(hi_all[k])
-        q = points[lo:hi] @ cam_T_world[k, :3, :3].T + cam_T_world[k, :3, 3]
+        if candidates is None:
+            lo, hi = int(lo_all[k]), int(hi_all[k])
+            idx = np.arange(lo, hi)
+        else:
+            idx = candidates(k)
+        q = points[idx] @ cam_T_world[k, :3, :3].T + cam_T_world[k, :3, 3]
         depth = q[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             z0 = project(M, homogeneous(q))  # paper eq. 1-3
@@ -176,18 +334,18 @@ def observe_landmarks(
             & (z0[:, 1] >= BORDER_PX)
             & (z0[:, 1] <= height - 1 - BORDER_PX)
         )
-        was_active = active[lo:hi]
-        keep = was_active & visible & (remaining[lo:hi] > 0)
+        was_active = active[idx]
+        keep = was_active & visible & (remaining[idx] > 0)
         p_detect = 1.0 if k == 0 else config.detect_probability
         # A track that ends now cannot restart now (ended tracks were active).
-        start = ~was_active & visible & (rng_tracks.random(hi - lo) < p_detect)
+        start = ~was_active & visible & (rng_tracks.random(idx.size) < p_detect)
         local = np.flatnonzero(keep | start)
         error = drifting_noise(sigma * rng_pixels.standard_normal((local.size, 4)),
-                               last_error[lo + local], keep[local], config.pixel_correlation)
+                               last_error[idx[local]], keep[local], config.pixel_correlation)
         z = z0[local] + error
         ok = z[:, 0] - z[:, 2] >= config.min_disparity
         local, z = local[ok], z[ok]
-        seen = lo + local
+        seen = idx[local]
         error = error[ok]
         if repeat_frames is not None and repeat_frames[k]:
             again = keep[local]
@@ -196,8 +354,11 @@ def observe_landmarks(
         last_z[seen] = z
         last_error[seen] = error
         new = seen[start[local]]
+        starting = new
+        if same_track:  # a landmark with a track already continues it
+            new = new[track_of[new] < 0]
         track_of[new] = next_id + np.arange(new.size)
-        remaining[new] = rng_tracks.geometric(p_len, new.size)
+        remaining[starting] = rng_tracks.geometric(p_len, starting.size)
         track_landmark.append(new)
         next_id += new.size
         # Every track not observed now has ended for good (also any left outside the window).

@@ -10,6 +10,26 @@ angular velocity follows from the Z-Y-X Euler kinematics with zero roll,
 ``w = [-psi' sin(theta), theta', psi' cos(theta)]``, and the body linear velocity is
 ``[speed, 0, 0]``. ``true_velocities[k]`` is this instantaneous twist ``u_k`` at ``t_k``.
 
+Scenarios (``scenario``; :func:`eval.sim_config.scenario_config` gives each one's defaults)
+-------------------------------------------------------------------------------------------
+* ``"road"`` (default): the drive above; tracks never come back. Every road drive is the same,
+  to the byte, as before the scenarios existed.
+* ``"loop"``: a car on a flat closed loop, a rounded rectangle (:func:`eval.sim_drawing.loop_curvature`)
+  sized so that the drive is ``1 + loop_overlap`` laps: it comes back to its start (within a
+  fraction of a metre) and drives the start again. Landmarks stand along one lap as the road's do
+  (the same kinds and offsets); every landmark within reach of the car is looked at, so the start's
+  landmarks are seen again at the end.
+* ``"room"``: a platform on the floor of a ``room_size`` room, planar motion with yaw (no pitch,
+  roll or height change), driving round the room through random waypoints at walking speed,
+  stopping (twists exactly zero for 1-4 s) at a share ``stop_probability`` of them and looking
+  round on the spot at most (:func:`eval.sim_drawing.room_drive`); ``room_landmarks`` landmarks on
+  the walls near the camera's height, each seen again and again. Same camera, stereo rig and
+  extrinsic as the road.
+
+In the loop and the room the tracker recognises a landmark it has seen before: a landmark seen
+again after its track ended continues **the same track index** (tracks come back after gaps,
+numbered in order of their first frame, one track per landmark). The road's tracker never does.
+
 Velocity pairing (documented convention, exact on noise-free data)
 ------------------------------------------------------------------
 The true motion over ``[t_k, t_{k+1}]`` is the constant body twist equal to the **mean** of the
@@ -48,9 +68,10 @@ Measurements
   when its depth in the left camera is 3-60 m and both its projections fall in the 1241x376 px
   image, 5 px away from the border. A visible landmark without a track starts one with probability ``detect_probability``
   per frame (every visible landmark at frame 0); the track lasts a geometric number of frames
-  (mean ``mean_track_length``) and ends earlier when the landmark leaves the view. A track once
-  ended is never observed again; a landmark seen again later gets a new track index, as in the
-  real data. Track indices are numbered in order of their first frame.
+  (mean ``mean_track_length``) and ends earlier when the landmark leaves the view. On the road a
+  track once ended is never observed again; a landmark seen again later gets a new track index,
+  as in the real data (the loop and the room: the same index). Track indices are numbered in
+  order of their first frame.
 * Stereo pixels: ``z = M pi(cam_T_imu @ inv(world_T_imu) @ m)`` (paper eq. 1-3) plus
   ``N(0, pixel_sigma^2)`` on each of uL, vL, uR, vR; an observation whose noisy disparity falls
   below ``min_disparity`` is dropped and ends its track. With ``pixel_correlation`` a the error
@@ -97,8 +118,12 @@ from vislam.eval.sim_drawing import (
     LOOKAHEAD_M,
     instantaneous_twists,
     integrate_mean_pairing,
+    loop_drive,
+    nearby_points,
     observe_landmarks,
     place_landmarks,
+    room_drive,
+    room_landmarks,
     velocity_noise,
     velocity_samples,
 )
@@ -226,23 +251,42 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
     streams = [np.random.default_rng(s) for s in np.random.SeedSequence(config.seed).spawn(6)]
     rng_drive, rng_landmarks, rng_tracks, rng_velocity, rng_pixels, rng_events = streams
     dt = 1.0 / config.rate_hz
-    # Simulate past the last frame so that landmarks exist up to max_depth ahead of it.
-    n_extra = int(np.ceil((LOOKAHEAD_M + config.max_depth) / config.speed_min * config.rate_hz))
-    n_all = config.n_frames + n_extra
-    t_all = np.arange(n_all) * dt
-    u_all = instantaneous_twists(config, rng_drive, t_all)
-    poses_all = integrate_mean_pairing(u_all, np.full(n_all - 1, dt))
-    road_z = float(se3_inv(KITTI_CAM_T_IMU)[2, 3]) - KITTI_CAMERA_HEIGHT
-    points, point_arc = place_landmarks(config, rng_landmarks, poses_all, road_z)
-
     T = config.n_frames
+    road_z = float(se3_inv(KITTI_CAM_T_IMU)[2, 3]) - KITTI_CAMERA_HEIGHT
+    candidates, same_track = None, config.scenario != "road"
+    if config.scenario == "room":
+        t_all = np.arange(T + 1) * dt
+        u_all, poses_all = room_drive(config, rng_drive, T + 1, dt)
+        points = room_landmarks(config, rng_landmarks, float(se3_inv(KITTI_CAM_T_IMU)[2, 3]))
+        point_arc = np.zeros(points.shape[0])
+        every = np.arange(points.shape[0])
+        candidates = lambda k: every  # noqa: E731 (a room: every landmark may be in view)
+    elif config.scenario == "loop":
+        t_all = np.arange(T + 1) * dt
+        u_all, poses_all, lap = loop_drive(config, rng_drive, t_all, T)
+        pos = poses_all[:, :3, 3]
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
+        one_lap = poses_all[: max(int(np.searchsorted(arc, lap)), 2)]
+        points, point_arc = place_landmarks(config, rng_landmarks, one_lap, road_z)
+        reach = config.max_depth + float(np.linalg.norm(KITTI_CAM_T_IMU[:3, 3])) + 1.0
+        candidates = nearby_points(points, pos, reach)
+    else:
+        # Simulate past the last frame so that landmarks exist up to max_depth ahead of it.
+        n_extra = int(np.ceil((LOOKAHEAD_M + config.max_depth) / config.speed_min * config.rate_hz))
+        n_all = config.n_frames + n_extra
+        t_all = np.arange(n_all) * dt
+        u_all = instantaneous_twists(config, rng_drive, t_all)
+        poses_all = integrate_mean_pairing(u_all, np.full(n_all - 1, dt))
+        points, point_arc = place_landmarks(config, rng_landmarks, poses_all, road_z)
+
     poses, timestamps = poses_all[:T], t_all[:T]
     u_true = velocity_samples(u_all, T, config.velocity_pairing)
     true_cam_T_imu = KITTI_CAM_T_IMU.copy()
     calib = Calibration(K=KITTI_K.copy(), baseline=KITTI_BASELINE, cam_T_imu=true_cam_T_imu)
     repeat_frames = (rng_events.random(T) < config.repeat_event_rate) & (np.arange(T) >= 2)
     frame, track, z, _, track_landmark = observe_landmarks(
-        config, rng_tracks, rng_pixels, poses, points, point_arc, calib, repeat_frames
+        config, rng_tracks, rng_pixels, poses, points, point_arc, calib, repeat_frames,
+        candidates, same_track,
     )
     file_calib = Calibration(K=calib.K, baseline=calib.baseline,
                              cam_T_imu=file_extrinsic(config, true_cam_T_imu))

@@ -17,7 +17,15 @@ import time
 from pathlib import Path
 
 from vislam.ekf.errors import InputError
-from vislam.eval.sim_config import DEFAULT_SIM, FILE_EXTRINSIC_FAULTS, SIM_VELOCITY_PAIRINGS, SimConfig
+from vislam.eval.sim_config import (
+    DEFAULT_SIM,
+    FILE_EXTRINSIC_FAULTS,
+    SCENARIO_DEFAULTS,
+    SIM_SCENARIOS,
+    SIM_VELOCITY_PAIRINGS,
+    SimConfig,
+    scenario_config,
+)
 from vislam.eval.sim_files import write_simulation
 from vislam.eval.simulate import simulate, simulation_stats
 
@@ -44,7 +52,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--frames", type=int, default=d.n_frames, help="number of frames at 10 Hz (default %(default)s)"
     )
     parser.add_argument(
-        "--name", default=None, help="file name stem (default sim-seed{SEED})"
+        "--scenario", choices=SIM_SCENARIOS, default=d.scenario,
+        help="the drive's shape: road (a KITTI-like drive, tracks never come back), loop (a car "
+        "that drives a closed loop and sees its first landmarks again), room (a platform in a "
+        "10 x 8 m room, 50 landmarks on the walls seen again and again, stops included) "
+        "(default %(default)s)",
+    )
+    parser.add_argument(
+        "--name", default=None,
+        help="file name stem (default sim-seed{SEED} for the road, {SCENARIO}-seed{SEED} else)"
     )
     parser.add_argument(
         "--pixel-sigma", type=float, default=d.pixel_sigma, help="stereo pixel noise, px (default %(default)s)"
@@ -56,7 +72,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="M/S",
         help="linear-velocity noise per sample, m/s: one value for every axis or three (x, y, z; "
-        f"'0.5,0.4,0.3' or '0.5 0.4 0.3') (default {d.velocity_sigma})",
+        f"'0.5,0.4,0.3' or '0.5 0.4 0.3') (default {d.velocity_sigma}; room "
+        f"{SCENARIO_DEFAULTS['room']['velocity_sigma']})",
     )
     parser.add_argument(
         "--gyro-sigma",
@@ -64,7 +81,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="+",
         default=None,
         metavar="RAD/S",
-        help=f"angular-velocity noise per sample, rad/s: one value or three (default {d.gyro_sigma})",
+        help=f"angular-velocity noise per sample, rad/s: one value or three (default {d.gyro_sigma}; "
+        f"room {SCENARIO_DEFAULTS['room']['gyro_sigma']})",
     )
     parser.add_argument(
         "--gyro-bias",
@@ -145,16 +163,20 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         bias = bias * 3
     if len(bias) != 3:
         raise InputError(f"--gyro-bias takes one or three values, got {len(bias)}")
-    name = args.name if args.name is not None else f"sim-seed{args.seed}"
+    scenario = getattr(args, "scenario", DEFAULT_SIM.scenario)
+    stem = "sim" if scenario == "road" else scenario
+    name = args.name if args.name is not None else f"{stem}-seed{args.seed}"
     check_name(name)
     offset = getattr(args, "file_extrinsic_offset", None)
-    return SimConfig(
+    base = {**DEFAULT_SIM.__dict__, **SCENARIO_DEFAULTS[scenario]}
+    return scenario_config(
+        scenario,
         seed=args.seed,
         n_frames=args.frames,
         name=name,
         pixel_sigma=args.pixel_sigma,
-        velocity_sigma=_sigma_arg(args, "velocity_sigma", DEFAULT_SIM.velocity_sigma),
-        gyro_sigma=_sigma_arg(args, "gyro_sigma", DEFAULT_SIM.gyro_sigma),
+        velocity_sigma=_sigma_arg(args, "velocity_sigma", base["velocity_sigma"]),
+        gyro_sigma=_sigma_arg(args, "gyro_sigma", base["gyro_sigma"]),
         gyro_bias=tuple(bias),
         landmark_density=args.landmark_density,
         repeat_event_rate=args.repeat_event_rate,
