@@ -86,3 +86,35 @@ def test_frame0_gauge_puts_truth_on_the_estimate_at_frame_0():
     est0 = G @ poses[0]
     moved = frame0_gauge(GroundTruth(np.arange(5), poses, "t"), est0)
     np.testing.assert_allclose(moved.poses, G @ poses, atol=1e-12)
+
+
+def test_simulate_imu_writes_a_drive_every_command_reads(tmp_path, capsys):
+    from vislam.eval.inertial_files import load_inertial_drive
+    from vislam.eval.inertial_truth import find_inertial_truth
+
+    out = tmp_path / "sim"
+    assert main(["simulate", "--imu", "--scenario", "road", "--camera", "stereo", "--frames", "41",
+                 "--seed", "3", "--out", str(out)]) == 0
+    assert "raw IMU" in capsys.readouterr().out
+    path = out / "imu-road-stereo-seed3.npz"
+    drive = load_inertial_drive(path)
+    assert drive.n_frames == 41 and drive.stereo and drive.imu.time.size == 401  # 2 s at 200 Hz
+    truth = find_inertial_truth(path, drive)
+    assert truth.truth.n == 41 and truth.velocity is not None
+    np.testing.assert_allclose(truth.truth.poses[0, :3, 3], 0, atol=1e-12)
+    # the same seed, the same bytes
+    again = tmp_path / "again"
+    assert main(["simulate", "--imu", "--scenario", "road", "--camera", "stereo", "--frames", "41",
+                 "--seed", "3", "--out", str(again)]) == 0
+    assert (again / path.name).read_bytes() == path.read_bytes()
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["--imu", "--scenario", "loop"], "--imu simulates room, handheld, road"),
+    (["--imu", "--radial-k1", "0.01"], "--radial-k1: a setting of velocity drives"),
+    (["--camera", "stereo"], "--camera: a setting of raw-IMU simulations"),
+    (["--scenario", "handheld"], "a raw-IMU scenario; add --imu"),
+])
+def test_simulate_imu_flags_of_the_other_kind_are_refused(tmp_path, capsys, argv, fragment):
+    assert main(["simulate", *argv, "--out", str(tmp_path / "x")]) == 2
+    assert fragment in capsys.readouterr().err and not (tmp_path / "x").exists()

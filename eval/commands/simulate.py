@@ -27,6 +27,8 @@ from vislam.eval.sim_config import (
     scenario_config,
 )
 from vislam.eval.sim_files import write_simulation
+from vislam.eval.imu_sim_config import CAMERAS as IMU_CAMERAS
+from vislam.eval.imu_trajectories import SCENARIOS as IMU_SCENARIOS
 from vislam.eval.simulate import simulate, simulation_stats
 
 
@@ -52,11 +54,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--frames", type=int, default=d.n_frames, help="number of frames at 10 Hz (default %(default)s)"
     )
     parser.add_argument(
-        "--scenario", choices=SIM_SCENARIOS, default=d.scenario,
+        "--scenario", choices=tuple(dict.fromkeys(SIM_SCENARIOS + IMU_SCENARIOS)), default=d.scenario,
         help="the drive's shape: road (a KITTI-like drive, tracks never come back), loop (a car "
         "that drives a closed loop and sees its first landmarks again), room (a platform in a "
-        "10 x 8 m room, 50 landmarks on the walls seen again and again, stops included) "
-        "(default %(default)s)",
+        "10 x 8 m room, 50 landmarks on the walls seen again and again, stops included); with "
+        "--imu: room (a drone), handheld or road (a car) (default %(default)s)",
+    )
+    parser.add_argument(
+        "--imu", action="store_true",
+        help="a raw-IMU drive (accelerometer and gyro at 200 Hz, tracks at 20 Hz, a rest at the "
+        "start, EuRoC's IMU noise) instead of a velocity drive; its ground truth is "
+        "groundtruth/NAME.csv",
+    )
+    parser.add_argument(
+        "--camera", choices=IMU_CAMERAS, default=None,
+        help="--imu: one camera (mono, two pixel columns) or a rectified stereo pair (default mono)",
     )
     parser.add_argument(
         "--name", default=None,
@@ -238,6 +250,13 @@ def check_name(name: str) -> None:
         )
 
 
+def _defaults() -> dict:
+    """Every flag's default (what the raw-IMU simulation checks the velocity flags against)."""
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    return {a.dest: a.default for a in parser._actions}
+
+
 def outputs(name: str) -> tuple[str, ...]:
     """The files ``vislam simulate`` writes, relative to ``--out`` (eval.sim_files.write_simulation)."""
     return (f"{name}.npz", f"groundtruth/{name}.txt", f"{name}_landmarks.npz",
@@ -246,6 +265,16 @@ def outputs(name: str) -> tuple[str, ...]:
 
 def run(args: argparse.Namespace) -> int:
     from vislam.eval.output_dir import OutputDir
+
+    if getattr(args, "imu", False):
+        from vislam.eval.commands.simulate_imu import run_imu
+
+        return run_imu(args, _defaults(), check_name)
+    if getattr(args, "camera", None) is not None:
+        raise InputError("--camera: a setting of raw-IMU simulations; add --imu")
+    if args.scenario not in SIM_SCENARIOS:
+        raise InputError(f"--scenario {args.scenario}: a raw-IMU scenario; add --imu, or choose "
+                         f"one of {', '.join(SIM_SCENARIOS)}")
 
     config = config_from_args(args)
     with OutputDir(args.out, force=args.force, expected=outputs(config.name)) as tmp:
