@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from vislam.ekf.errors import InputError
-from vislam.eval.imu_sim_config import CAMERAS, ImuSimConfig
+from vislam.eval.imu_sim_config import ImuSimConfig
 from vislam.eval.imu_trajectories import SCENARIOS
 
 #: The velocity-drive flags that mean nothing to a raw-IMU simulation (refused with --imu).

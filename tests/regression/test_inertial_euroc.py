@@ -4,7 +4,6 @@ eqvio tracks): its 4-dof aligned ATE and pose NEES against the ground truth, pin
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
