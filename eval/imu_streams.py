@@ -19,15 +19,22 @@ MAX_GAP_FACTOR = 5.0
 SNAP_NS = 1000
 
 
+def first_gap(steps: np.ndarray) -> tuple[int, float] | None:
+    """The first IMU interval of ``steps`` longer than :data:`MAX_GAP_FACTOR` median intervals
+    (its index) and the median, or None: the gap rule of every reader of an IMU stream."""
+    median = float(np.median(steps))
+    bad = np.flatnonzero(steps > MAX_GAP_FACTOR * median)
+    return None if bad.size == 0 else (int(bad[0]), median)
+
+
 def check_gaps(path: Path, time_ns: np.ndarray, lines: np.ndarray) -> None:
     """No IMU interval longer than :data:`MAX_GAP_FACTOR` median intervals."""
     if time_ns.size < 3:
         raise InputError(f"{path}: {time_ns.size} IMU sample(s); a drive needs more")
     steps = np.diff(time_ns)
-    median = float(np.median(steps))
-    bad = np.flatnonzero(steps > MAX_GAP_FACTOR * median)
-    if bad.size:
-        i = int(bad[0])
+    gap = first_gap(steps)
+    if gap is not None:
+        i, median = gap
         raise InputError(f"{path}: line {int(lines[i + 1])}: a gap of {steps[i] * 1e-9:.4g} s in the "
                          f"IMU stamps after line {int(lines[i])} (the median interval is "
                          f"{median * 1e-9:.4g} s); samples are never interpolated over a gap: "
@@ -48,12 +55,7 @@ def observations(frame: np.ndarray, track_id: np.ndarray, z: np.ndarray, n_frame
                  ) -> tuple[Observations, int, np.ndarray]:
     """Observations with dense track indices (0..M-1 in order of id), M, and the ids."""
     ids, track = np.unique(track_id, return_inverse=True)
-    frame = np.asarray(frame, dtype=np.int64)
-    order = np.lexsort((track, frame))
-    ptr = np.zeros(n_frames + 1, dtype=np.int64)
-    np.cumsum(np.bincount(frame, minlength=n_frames), out=ptr[1:])
-    obs = Observations(ptr, track[order].astype(np.int64), np.asarray(z, dtype=float)[order])
-    return obs, int(ids.size), ids
+    return Observations.from_rows(frame, track, z, n_frames), int(ids.size), ids
 
 
 def snap_to_samples(frame_ns: np.ndarray, imu_ns: np.ndarray) -> np.ndarray:

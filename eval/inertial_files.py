@@ -32,7 +32,7 @@ from vislam.ekf.errors import InputError
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.inertial import STANDARD_GRAVITY, ImuNoise, InertialCalibration, InertialDrive
 from vislam.ekf.sequence import Observations
-from vislam.eval.imu_streams import MAX_GAP_FACTOR
+from vislam.eval.imu_streams import first_gap
 from vislam.eval.drive_keys import (SPARSE_KEYS, TRANSFORM_KEYS, _numeric, check_calibration,
                                     check_time_stamps, validate_sparse)
 from vislam.eval.export import save_npz_reproducible
@@ -124,10 +124,9 @@ def _imu(raw: dict, path: Path) -> ImuSamples:
         kind = "duplicates" if steps[k] == 0 else "is earlier than"
         raise InputError(f"{path}: key 'imu_time' row {k + 1} ({t[k + 1]!r} s) {kind} row {k}; "
                          "IMU stamps must be strictly increasing")
-    median = float(np.median(steps))
-    gaps = np.flatnonzero(steps > MAX_GAP_FACTOR * median)
-    if gaps.size:
-        k = int(gaps[0])
+    gap = first_gap(steps)
+    if gap is not None:
+        k, median = gap
         raise InputError(f"{path}: key 'imu_time': a gap of {steps[k]:.4g} s after row {k} (the "
                          f"median interval is {median:.4g} s); samples are never interpolated over "
                          "a gap: cut the drive there")
