@@ -20,15 +20,17 @@ from vislam.eval.bench_scores import (
     RPE_DEFINITION,
     RPE_DRIVE_DEFINITION,
     SCHEMA,
+    default_alignment,
     score_sequence,
 )
 from vislam.eval.drive_figures import sequence_figures
-from vislam.eval.drives import BenchSequence, is_raw_imu
+from vislam.eval.drives import BenchSequence
 from vislam.eval.export import write_tum
 from vislam.eval.metrics import ALIGN_DESCRIPTIONS, check_align_mode
 from vislam.eval.output_dir import OutputDir
 from vislam.eval.readings import summary_markdown
-from vislam.eval.registry import DEFAULT_BENCH, DEFAULT_BENCH_INERTIAL, applicable, file_stem
+from vislam.eval.registry import (DEFAULT_BENCH, DEFAULT_BENCH_INERTIAL, applicable, drive_kind,
+                                  file_stem)
 from vislam.eval.report import report_html
 from vislam.eval.signals import deferred
 from vislam.eval.study import JobResult, run_jobs
@@ -106,19 +108,15 @@ def run_benchmark(
     return BenchOutput(Path(out_dir), results, summary, time.perf_counter() - t0, failures)
 
 
-def drive_alignment(align: str | None, bs) -> str:
-    """The alignment of ``bs``'s aligned ATE: ``align`` where given, else se3 for a velocity
-    drive and yaw (4-DoF: rotation about gravity and translation) for a raw-IMU drive, whose
-    roll and pitch gravity makes observable."""
-    if align is not None:
-        return align
-    return "yaw" if is_raw_imu(bs) else "se3"
-
-
 def _alignment_definition(align: str | None, sequences) -> str:
-    used = dict.fromkeys(drive_alignment(align, b) for b in sequences)
-    return "ate_aligned_m (ATE al.): the ATE after " + "; raw-IMU drives: ".join(
-        ALIGN_DESCRIPTIONS[a] for a in used)
+    """results.json's ``alignment_definition``: one mode, or each kind of drive's by default."""
+    used = {kind: default_alignment(align, b.sequence)
+            for kind, b in ((drive_kind(b.sequence), b) for b in sequences)}
+    words = {kind: ALIGN_DESCRIPTIONS[mode] for kind, mode in used.items()}
+    if len(set(words.values())) <= 1:
+        return "ate_aligned_m (ATE al.): the ATE after " + next(iter(words.values()), "")
+    return "ate_aligned_m (ATE al.): the ATE after " + "; ".join(
+        f"{text} on {kind} drives" for kind, text in words.items())
 
 
 def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smoother, settings,
@@ -137,7 +135,8 @@ def _write_results(tmp: Path, sequences, estimators, outcomes, config, jobs, smo
     for bs in sequences:
         names = applicable(estimators, bs.sequence)
         outs = {n: outcomes[(bs.name, n)] for n in names if (bs.name, n) in outcomes}
-        results["sequences"].append(score_sequence(bs, names, outs, align=drive_alignment(align, bs)))
+        results["sequences"].append(score_sequence(bs, names, outs,
+                                                   align=default_alignment(align, bs.sequence)))
         ests = {n: o.estimate for n, o in outs.items() if isinstance(o, JobResult)}
         folder = tmp / bs.name
         for name, est in ests.items():

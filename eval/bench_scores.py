@@ -42,10 +42,10 @@ from vislam.eval.consistency import (
     pose_nees,
     versus_smoother,
 )
-from vislam.eval.drives import BenchSequence, is_raw_imu
+from vislam.eval.drives import BenchSequence
 from vislam.eval.inertial_truth import frame0_gauge
 from vislam.eval.metrics import check_align_mode, drive_rpe, kitti_drift
-from vislam.eval.registry import INERTIAL_SMOOTHERS, SMOOTHERS
+from vislam.eval.registry import INERTIAL_SMOOTHERS, SMOOTHERS, drive_kind
 from vislam.eval.study import JobFailure, JobResult
 
 #: The results.json schema written here; 2 added the drive-fitted RPE (``rpe_drive*``).
@@ -150,6 +150,24 @@ def _finite(x):
     return x
 
 
+def default_alignment(align: str | None, seq) -> str:
+    """The alignment of a drive's aligned ATE: ``align`` where given, else se3 for a velocity
+    drive and yaw (4-DoF: rotation about gravity and translation) for a raw-IMU drive, whose
+    roll and pitch gravity makes observable."""
+    if align is not None:
+        return align
+    return "yaw" if drive_kind(seq) == "raw-imu" else "se3"
+
+
+def truth_in_gauge(gt, seq, est: Estimate):
+    """The ground truth ``est`` is scored against: a raw-IMU drive's moved onto the estimate's
+    own yaw and origin at frame 0 (:func:`eval.inertial_truth.frame0_gauge`), any other as it
+    is."""
+    if gt is None or drive_kind(seq) != "raw-imu" or not est.n_frames:
+        return gt
+    return frame0_gauge(gt, est.poses[0])
+
+
 def reference_smoother(ests: dict[str, Estimate]) -> str | None:
     """The smoother the EKFs are compared with: the batch one if it ran, else iSAM2; on a
     raw-IMU drive the raw-IMU smoother."""
@@ -177,10 +195,7 @@ def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict,
         row["runtime_s"] = o.wall_s
         row["frames_per_s"] = est.n_frames / o.wall_s if o.wall_s > 0 else None
         row["landmarks"] = int(np.count_nonzero(est.has_landmark))
-        gt = bs.gt
-        if gt is not None and is_raw_imu(bs) and est.n_frames:
-            gt = frame0_gauge(gt, est.poses[0])  # the estimate's own yaw and origin at frame 0
-        scores = trajectory_scores(est, gt, align=align)
+        scores = trajectory_scores(est, truth_in_gauge(bs.gt, bs.sequence, est), align=align)
         for k in TRAJECTORY_KEYS:
             row[k] = scores[k]
         if bs.landmark_truth is not None and row["landmarks"]:

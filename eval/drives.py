@@ -208,9 +208,9 @@ RAW_IMU_MODEL = ("not identified: raw-IMU drives are run under the file's calibr
 
 def is_raw_imu(bs: BenchSequence) -> bool:
     """Whether ``bs`` is a raw-IMU drive (:class:`ekf.inertial.InertialDrive`)."""
-    from vislam.ekf.inertial import InertialDrive
+    from vislam.eval.registry import drive_kind
 
-    return isinstance(bs.sequence, InertialDrive)
+    return drive_kind(bs.sequence) == "raw-imu"
 
 
 def as_given(sequences: list[BenchSequence]) -> list[BenchSequence]:

@@ -144,26 +144,10 @@ def _write_plots(tmp: Path, args, seq, gt, est, landmark_truth) -> list[Path]:
         raise
 
 
-def _align(args, seq) -> str:
-    """``--align``, else se3 for a velocity drive and yaw for a raw-IMU drive."""
-    from vislam.eval.registry import drive_kind
-
-    return getattr(args, "align", None) or ("yaw" if drive_kind(seq) == "raw-imu" else "se3")
-
-
-def _gauge(gt, seq, est):
-    """A raw-IMU drive's truth in the estimate's frame-0 gauge (eval.inertial_truth)."""
-    from vislam.eval.inertial_truth import frame0_gauge
-    from vislam.eval.registry import drive_kind
-
-    if gt is None or drive_kind(seq) != "raw-imu" or not est.n_frames:
-        return gt
-    return frame0_gauge(gt, est.poses[0])
-
-
 def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path, *, plots: bool = True,
                         landmark_truth: np.ndarray | None = None) -> dict:
-    from vislam.eval.bench_scores import RPE_DEFINITION, trajectory_scores
+    from vislam.eval.bench_scores import (RPE_DEFINITION, default_alignment, trajectory_scores,
+                                          truth_in_gauge)
     from vislam.eval.progress import Progress
     from vislam.eval.signals import deferred
     from vislam.eval.study import run_estimator
@@ -180,7 +164,8 @@ def _estimate_and_write(args, seq, gt, config, smoother, model, tmp: Path, *, pl
         "landmarks": int(np.count_nonzero(est.has_landmark)),
         "numerical_rejections": int(est.info.get("numerical_rejections", 0)),
         "has_ground_truth": gt is not None,
-        **trajectory_scores(est, _gauge(gt, seq, est), align=_align(args, seq)),
+        **trajectory_scores(est, truth_in_gauge(gt, seq, est),
+                            align=default_alignment(getattr(args, "align", None), seq)),
         "rpe_definition": RPE_DEFINITION,
     }
     settings = {
