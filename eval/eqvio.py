@@ -23,6 +23,7 @@ from __future__ import annotations
 import csv
 import io
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -61,14 +62,16 @@ def packaged_eqvio() -> Path:
 
 
 def is_eqvio_csv(path: str | os.PathLike) -> bool:
-    """Whether ``path`` names the eqvio csv: the word ``eqvio`` or a file whose first line is
-    its header."""
+    """Whether ``path`` names the eqvio csv: the word ``eqvio`` or a regular file whose first
+    line is its header (a FIFO or device is never opened: reading it could block)."""
     if str(path) == "eqvio":
         return True
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return False
         with open(path, "rb") as fh:
-            return fh.readline().decode("utf-8", "replace").strip().startswith("row_type,t_abs")
-    except OSError:
+            return fh.readline(256).decode("utf-8", "replace").strip().startswith("row_type,t_abs")
+    except (OSError, ValueError):
         return False
 
 

@@ -148,3 +148,16 @@ def test_ground_truth_at_frames_in_the_estimates_world():
     assert abs(axis[2]) < 1e-12  # the least rotation turns about a horizontal axis
     np.testing.assert_allclose(np.linalg.inv(local[0]) @ local[3], np.linalg.inv(poses[0]) @ poses[3],
                                atol=1e-12)
+
+
+def test_a_fifo_as_source_or_tracks_is_refused_without_blocking(tmp_path, capsys):
+    import os
+
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)
+    assert convert(str(fifo), "--out", str(tmp_path / "x.npz")) == 2
+    assert "not an ASL folder" in capsys.readouterr().err
+    root, _ = write_asl(tmp_path / "asl")
+    assert convert(str(root), "--tracks", str(fifo), "--out", str(tmp_path / "y.npz")) == 2
+    err = capsys.readouterr().err
+    assert "pipe.csv" in err and err.count("\n") == 1 and not (tmp_path / "y.npz").exists()
