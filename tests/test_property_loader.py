@@ -239,6 +239,18 @@ def zip_bytes(members: list[tuple[str, bytes]], method: int) -> bytes:
     return buf.getvalue()
 
 
+def position(draw, n: int) -> int:
+    """An index in ``range(n)`` drawn independently of ``n``.
+
+    The lengths of serialised members are not a pure function of the draws (numpy pickles an
+    object array's scalars with their dtypes, and how many of those pickle shares differs from
+    process to process), so a strategy that drew ``integers(0, len(data))`` drew with different
+    bounds on a replay, which hypothesis reports as a flaky strategy (CI at 1d5c3aa). A fraction
+    of the length is drawn instead; it shrinks towards 0 as before.
+    """
+    return min(n - 1, draw(st.integers(0, 2**16 - 1)) * n // 2**16)
+
+
 def npy(a: np.ndarray) -> bytes:
     buf = io.BytesIO()
     np.lib.format.write_array(buf, np.asanyarray(a), allow_pickle=a.dtype.hasobject)
@@ -272,7 +284,7 @@ def npz_file(draw, layout: str = "dense") -> tuple[bytes, list[str]]:
         elif op == "no_suffix":
             members[i] = (name.removesuffix(".npy") or name, data)
         elif op == "truncate_member":
-            members[i] = (name, data[: draw(st.integers(0, len(data)))])
+            members[i] = (name, data[: position(draw, len(data) + 1)])
         elif op == "pad_member":
             members[i] = (name, data + draw(st.binary(min_size=1, max_size=32)))
         labels.append(f"{op} {name}")
@@ -285,14 +297,14 @@ def npz_file(draw, layout: str = "dense") -> tuple[bytes, list[str]]:
             break
         if op == "flip":
             for _ in range(draw(st.integers(1, 8))):
-                raw[draw(st.integers(0, len(raw) - 1))] ^= draw(st.integers(1, 255))
+                raw[position(draw, len(raw))] ^= draw(st.integers(1, 255))
         elif op == "truncate":
-            del raw[draw(st.integers(0, len(raw) - 1)):]
+            del raw[position(draw, len(raw)):]
         elif op == "insert":
-            at = draw(st.integers(0, len(raw)))
+            at = position(draw, len(raw) + 1)
             raw[at:at] = draw(st.binary(min_size=1, max_size=16))
         elif op == "size":  # a member's directory entry lies about its uncompressed size
-            at = raw.find(b"PK\x01\x02", draw(st.integers(0, len(raw) - 1)))
+            at = raw.find(b"PK\x01\x02", position(draw, len(raw)))
             if at >= 0 and at + 28 <= len(raw):
                 raw[at + 24:at + 28] = struct.pack("<I", draw(st.sampled_from(
                     [0, 1, 2**20, 2**31, 0xFFFFFFFE, 0xFFFFFFFF])))
