@@ -10,11 +10,17 @@ from pathlib import Path
 import numpy as np
 
 from vislam.ekf.estimate import Estimate
-from vislam.eval import plots
-from vislam.eval.bench_scores import reference_smoother
+from vislam.eval import plots, plots_top_view
+from vislam.eval.bench_scores import reference_smoother, truth_in_gauge
 from vislam.eval.consistency import pose_nees
-from vislam.eval.drives import BenchSequence
-from vislam.eval.registry import ESTIMATOR_NAMES, SMOOTHER_INITIAL_FROM, SMOOTHERS
+from vislam.eval.drives import BenchSequence, is_raw_imu
+from vislam.eval.registry import (
+    ESTIMATOR_NAMES,
+    INERTIAL_ESTIMATOR_NAMES,
+    INERTIAL_SMOOTHERS,
+    SMOOTHER_INITIAL_FROM,
+    SMOOTHERS,
+)
 
 
 def sequence_figures(folder: Path, bs: BenchSequence, ests: dict[str, Estimate]) -> list[Path]:
@@ -22,27 +28,34 @@ def sequence_figures(folder: Path, bs: BenchSequence, ests: dict[str, Estimate])
     written = []
     if not ests:
         return written
+    ref = reference_smoother(ests)
+    # A raw-IMU drive's truth in each estimate's own gauge (bench_scores.truth_in_gauge), as the
+    # scores take it; the top view and the map show it in the reference's (else the first's).
     gt = bs.gt
-    gt_pos = np.asarray(gt.poses)[:, :3, 3] if gt is not None else None
+    truth = {n: truth_in_gauge(gt, bs.sequence, e) for n, e in ests.items()} if gt is not None else {}
+    shown = truth.get(ref, next(iter(truth.values()), None))
+    gt_pos = np.asarray(shown.poses)[:, :3, 3] if shown is not None else None
     title = bs.name
-    written.append(plots.plot_trajectories(folder / "trajectories.png", ests, gt_pos,
-                                           f"{title}: trajectories, top view"))
+    written.append(plots_top_view.plot_trajectories(folder / "trajectories.png", ests, gt_pos,
+                                           f"{title}: trajectories, top view",
+                                           world="raw-imu" if is_raw_imu(bs) else "velocity"))
     map_from = next(
         (n for n in (*SMOOTHERS, *SMOOTHER_INITIAL_FROM, "ekf-decoupled", "mapping")
          if n in ests and np.any(ests[n].has_landmark)),
         None,
     )
     if map_from is not None:
-        written.append(plots.plot_map(folder / "map.png", ests[map_from], gt_pos, bs.landmark_truth,
+        written.append(plots_top_view.plot_map(folder / "map.png", ests[map_from], gt_pos, bs.landmark_truth,
                                       f"{title}: landmark map ({map_from})"))
     if gt is not None:
         written.append(plots.plot_error_over_distance(
-            folder / "error_over_distance.png", ests, gt.frames, np.asarray(gt.poses),
+            folder / "error_over_distance.png", ests, gt.frames,
+            {n: np.asarray(t.poses) for n, t in truth.items()},
             f"{title}: translation error over distance (no alignment)"))
-    ref = reference_smoother(ests)
     # vislam's EKFs and a user's estimators (MODULE:FUNCTION, plug-ins): everything but the
     # smoothers, dead reckoning and mapping, which the smoother would only dwarf
-    ekfs = {n: e for n, e in ests.items() if n.startswith("ekf-") or n not in ESTIMATOR_NAMES}
+    ours = ESTIMATOR_NAMES + INERTIAL_ESTIMATOR_NAMES
+    ekfs = {n: e for n, e in ests.items() if n.startswith("ekf-") or n not in ours}
     if ref is not None and ekfs:
         written.append(plots.plot_vs_smoother(
             folder / "vs_smoother.png", ekfs, ests[ref],
@@ -52,10 +65,11 @@ def sequence_figures(folder: Path, bs: BenchSequence, ests: dict[str, Estimate])
         against, frames, poses, who = "ground truth", gt.frames, np.asarray(gt.poses), ests
     elif ref is not None:
         against, frames, poses = ref, np.arange(ests[ref].n_frames), ests[ref].poses
-        who = {n: e for n, e in ests.items() if n not in SMOOTHERS}
+        who = {n: e for n, e in ests.items() if n not in SMOOTHERS + INERTIAL_SMOOTHERS}
     else:
         who = {}
-    series = {n: pose_nees(e, frames, poses) for n, e in who.items()}
+    series = {n: pose_nees(e, frames, np.asarray(truth[n].poses) if against == "ground truth"
+                           else poses) for n, e in who.items()}
     series = {n: v for n, v in series.items() if np.any(np.isfinite(v))}
     if series:
         t = next(iter(ests.values())).timestamps

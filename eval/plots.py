@@ -2,8 +2,9 @@
 global backend switch, safe in worker processes and headless machines).
 
 Every function takes the output path first and writes it atomically (rendered to memory, then
-written through a temporary file and a rename). Axes: the world frame is the IMU frame at step
-0 (x forward, y left, z up), so the top view plots x (m) against y (m).
+written through a temporary file and a rename). Axes: a velocity drive's world frame is the IMU frame at step
+0 (x forward, y left, z up), a raw-IMU drive's is gravity-aligned (z up); the top views
+(:mod:`eval.plots_top_view`) plot x (m) against y (m).
 
 Every estimator stays visible where curves coincide (ekf-joint under ekf-invariant, dead
 reckoning under mapping): each has its own colour, line style, width, drawing order and marker
@@ -17,10 +18,9 @@ from __future__ import annotations
 
 import io
 import os
-import textwrap
 import zlib
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -125,7 +125,7 @@ def coincident(curves: Mapping[str, np.ndarray], rtol: float = 1e-3) -> dict[str
     return out
 
 
-def _label(name: str, same: Mapping[str, list[str]], extra: str = "") -> str:
+def curve_label(name: str, same: Mapping[str, list[str]], extra: str = "") -> str:
     parts = [extra] if extra else []
     if same.get(name):
         parts.append("same curve as " + ", ".join(same[name]))
@@ -142,7 +142,7 @@ def readable(x: float | None) -> str:
     return f"{x:.3g}"
 
 
-def _save(fig: Figure, path: str | os.PathLike) -> Path:
+def save_figure(fig: Figure, path: str | os.PathLike) -> Path:
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
@@ -150,7 +150,7 @@ def _save(fig: Figure, path: str | os.PathLike) -> Path:
     return Path(path)
 
 
-def _legend_outside(fig: Figure, axes, **kwargs):
+def legend_outside(fig: Figure, axes, **kwargs):
     """One legend for ``axes`` (unique labels), outside the data on the right."""
     handles, labels = [], []
     for ax in np.atleast_1d(axes).ravel():
@@ -165,97 +165,6 @@ def _legend_outside(fig: Figure, axes, **kwargs):
     return None
 
 
-def _equal_xy(ax, xy: np.ndarray, margin: float = 0.05) -> None:
-    """Equal-aspect limits around points (n, 2), ignoring non-finite rows."""
-    xy = xy[np.all(np.isfinite(xy), axis=1)]
-    if xy.size == 0:
-        return
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
-    span = max(float(np.max(hi - lo)), 1.0) * (1 + 2 * margin)
-    mid = (lo + hi) / 2
-    ax.set_xlim(mid[0] - span / 2, mid[0] + span / 2)
-    ax.set_ylim(mid[1] - span / 2, mid[1] + span / 2)
-    ax.set_aspect("equal", adjustable="box")
-
-
-def plot_trajectories(
-    path, estimates: Mapping[str, Estimate], gt_positions: np.ndarray | None = None, title: str = ""
-) -> Path:
-    """Top view (x-y) of every estimated trajectory, with ground truth when known."""
-    fig = Figure(figsize=(9, 7), layout="constrained")
-    ax = fig.add_subplot()
-    pts = []
-    if gt_positions is not None:
-        ax.plot(gt_positions[:, 0], gt_positions[:, 1], zorder=10, **GT_STYLE)
-        pts.append(gt_positions[:, :2])
-    same = coincident({n: e.positions[:, :2] for n, e in estimates.items()})
-    for i, (name, est) in enumerate(estimates.items()):
-        p = est.positions
-        ax.plot(p[:, 0], p[:, 1], label=_label(name, same), **line_style(name, i))
-        pts.append(p[:, :2])
-    first = next(iter(estimates.values()), None)
-    if first is not None:
-        ax.plot(*first.positions[0, :2], "k^", markersize=9, label="start", zorder=11)
-    _equal_xy(ax, np.concatenate(pts) if pts else np.zeros((0, 2)))
-    ax.set_xlabel("x (m, forward at start)")
-    ax.set_ylabel("y (m, left at start)")
-    ax.set_title(title or "Trajectories, top view")
-    ax.grid(True, alpha=0.3)
-    _legend_outside(fig, ax)
-    return _save(fig, path)
-
-
-#: The map shows landmarks within this many metres of the trajectory's bounding box.
-MAP_MARGIN_M = 60.0
-
-
-def plot_map(
-    path,
-    est: Estimate,
-    gt_positions: np.ndarray | None = None,
-    truth_landmarks: np.ndarray | None = None,
-    title: str = "",
-) -> Path:
-    """Top view of ``est``'s landmark map over its trajectory (and ground truth when known).
-    Landmarks more than :data:`MAP_MARGIN_M` outside the trajectory's bounding box are left out
-    (the title says how many, and how many tracks have no finite landmark); the true landmarks
-    are drawn on top as hollow black circles, the estimates as small filled dots."""
-    fig = Figure(figsize=(9, 7.5), layout="constrained")
-    ax = fig.add_subplot()
-    traj = est.positions
-    has = est.has_landmark
-    lm = est.landmarks[has]
-    lo = traj[:, :2].min(axis=0) - MAP_MARGIN_M
-    hi = traj[:, :2].max(axis=0) + MAP_MARGIN_M
-    near = np.all((lm[:, :2] >= lo) & (lm[:, :2] <= hi), axis=1) if lm.size else np.zeros(0, bool)
-    n_far, n_missing = int((~near).sum()), int((~has).sum())
-    left_out = []
-    if n_far:
-        left_out.append(f"{n_far} more than {MAP_MARGIN_M:g} m outside the trajectory's extent")
-    if n_missing:
-        left_out.append(f"{n_missing} tracks without a finite landmark")
-    note = (f"{int(near.sum())} of {len(lm)} estimated landmarks shown"
-            + ("; not shown: " + ", ".join(left_out) if left_out else "; none left out"))
-    ax.scatter(lm[near, 0], lm[near, 1], s=5, c="tab:blue", alpha=0.8, linewidths=0, zorder=2,
-               label=f"{est.estimator} landmarks ({int(near.sum())} shown)")
-    if truth_landmarks is not None:
-        tl = truth_landmarks[np.all(np.isfinite(truth_landmarks), axis=1)]
-        ax.scatter(tl[:, 0], tl[:, 1], s=22, facecolors="none", edgecolors="black",
-                   linewidths=0.7, zorder=3, label=f"true landmarks ({len(tl)})")
-    ax.plot(traj[:, 0], traj[:, 1], color="tab:red", linewidth=2.0,
-            label=f"{est.estimator} trajectory", zorder=5)
-    if gt_positions is not None:
-        ax.plot(gt_positions[:, 0], gt_positions[:, 1], zorder=6, **GT_STYLE)
-    _equal_xy(ax, np.concatenate([traj[:, :2], lm[near, :2]]))
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_title("\n".join([title or f"Landmark map ({est.estimator})", *textwrap.wrap(note, 64)]),
-                 fontsize=10)
-    ax.grid(True, alpha=0.3)
-    _legend_outside(fig, ax, markerscale=2)
-    return _save(fig, path)
-
-
 def distance_travelled(positions: np.ndarray) -> np.ndarray:
     """Cumulative path length (T,) along positions (T, 3)."""
     steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
@@ -263,31 +172,34 @@ def distance_travelled(positions: np.ndarray) -> np.ndarray:
 
 
 def plot_error_over_distance(
-    path, estimates: Mapping[str, Estimate], gt_frames: np.ndarray, gt_poses: np.ndarray,
-    title: str = "",
+    path, estimates: Mapping[str, Estimate], gt_frames: np.ndarray,
+    gt_poses: np.ndarray | Mapping[str, np.ndarray], title: str = "",
 ) -> Path:
     """Translation error (m, not aligned) of each estimate against ground truth, over the
-    distance travelled along the ground truth."""
+    distance travelled along the ground truth. ``gt_poses`` (n, 4, 4), or one such array per
+    estimate where each is scored against the truth in its own gauge (a raw-IMU drive's:
+    :func:`eval.bench_scores.truth_in_gauge`; the distance is the same in every gauge)."""
     frames = np.asarray(gt_frames, dtype=np.int64)
-    dist = distance_travelled(gt_poses[:, :3, 3])
+    truth = gt_poses if isinstance(gt_poses, Mapping) else {n: gt_poses for n in estimates}
+    dist = distance_travelled(next(iter(truth.values()))[:, :3, 3]) if truth else np.zeros(0)
     fig = Figure(figsize=(9.5, 4.8), layout="constrained")
     ax = fig.add_subplot()
     curves = {}
     for name, est in estimates.items():
         ok = frames < est.n_frames
         err = np.full(len(frames), np.nan)
-        err[ok] = np.linalg.norm(est.positions[frames[ok]] - gt_poses[ok, :3, 3], axis=1)
+        err[ok] = np.linalg.norm(est.positions[frames[ok]] - truth[name][ok, :3, 3], axis=1)
         curves[name] = err
     same = coincident(curves)
     for i, (name, err) in enumerate(curves.items()):
         ok = np.isfinite(err)
-        ax.plot(dist[ok], err[ok], label=_label(name, same), **line_style(name, i))
+        ax.plot(dist[ok], err[ok], label=curve_label(name, same), **line_style(name, i))
     ax.set_xlabel("distance travelled (m)")
     ax.set_ylabel("translation error (m)")
     ax.set_title(title or "Translation error over distance (no alignment)")
     ax.grid(True, alpha=0.3)
-    _legend_outside(fig, ax)
-    return _save(fig, path)
+    legend_outside(fig, ax)
+    return save_figure(fig, path)
 
 
 #: vs_smoother: a ±3σ band whose 90th percentile is under this share of the axis half-range is
@@ -354,7 +266,7 @@ def plot_vs_smoother(path, ekfs: Mapping[str, Estimate], smoother: Estimate, tit
         handles.append(Patch(color="0.3", alpha=0.25, label="EKF ±3σ"))
     fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=8)
     fig.suptitle(title or f"EKF deviation from the smoother ({smoother.estimator})")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def nees_axis_range(dof: int, n_runs: int = 1) -> tuple[float, float]:
@@ -414,7 +326,7 @@ def plot_nees(
                 if off > 0:
                     share = "<1" if off < 0.01 else f"{100 * off:.0f}"
                     extra += f", {share} % of steps off scale"
-        ax.plot(x[: len(v)][ok], v[ok], label=_label(name, same, extra),
+        ax.plot(x[: len(v)][ok], v[ok], label=curve_label(name, same, extra),
                 **line_style(name, i, n_points=int(ok.sum())))
     what = f"pose NEES ({dof} dof)" if n_runs == 1 else f"pose ANEES over {n_runs} runs ({dof} dof)"
     main.set_yscale("log")
@@ -434,9 +346,9 @@ def plot_nees(
         if ax is not None:
             ax.grid(True, which="both", alpha=0.3)
     (apart if apart is not None else main).set_xlabel("time (s)" if times is not None else "step")
-    _legend_outside(fig, [main, apart] if apart is not None else main, title=ylabel,
+    legend_outside(fig, [main, apart] if apart is not None else main, title=ylabel,
                     title_fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 class _PlainLogFormatter(LogFormatter):
@@ -449,8 +361,8 @@ class _PlainLogFormatter(LogFormatter):
 def plot_nees_depth_sweep(
     path,
     depths,
-    pose: Mapping[tuple[str, str | None], "np.ndarray | list"],
-    landmark: Mapping[tuple[str, str | None], "np.ndarray | list"],
+    pose: Mapping[tuple[str, str | None], np.ndarray | list],
+    landmark: Mapping[tuple[str, str | None], np.ndarray | list],
     n_runs: int,
     title: str = "",
 ) -> Path:
@@ -488,4 +400,4 @@ def plot_nees_depth_sweep(
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside right upper", fontsize=8, handlelength=4)
     fig.suptitle(title or f"ANEES against landmark range, {n_runs} runs")
-    return _save(fig, path)
+    return save_figure(fig, path)

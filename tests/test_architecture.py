@@ -32,6 +32,7 @@ APPLICATION = frozenset({
     "vislam.eval.output_dir",  # output folders: staged, checked, never over a user's files
     "vislam.eval.report",  # report.html
     "vislam.eval.plots",  # the benchmark's figures
+    "vislam.eval.plots_top_view",  # the top views: trajectories and map
     "vislam.eval.compare_plots",  # compare.png
     "vislam.eval.compare_text",  # compare.md and compare.tex
     "vislam.eval.bench_output",  # vislam bench's folder

@@ -7,7 +7,7 @@ import pytest
 
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.geometry import se3_exp
-from vislam.eval import plots
+from vislam.eval import plots, plots_top_view
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -42,8 +42,8 @@ def ests():
 def test_all_figures_are_written(tmp_path, ests):
     truth = ests["smoother"].poses
     gt_pos = truth[:, :3, 3]
-    _check_png(plots.plot_trajectories(tmp_path / "traj.png", ests, gt_pos, "test"))
-    _check_png(plots.plot_map(tmp_path / "map.png", ests["ekf-joint"], gt_pos, ests["smoother"].landmarks))
+    _check_png(plots_top_view.plot_trajectories(tmp_path / "traj.png", ests, gt_pos, "test"))
+    _check_png(plots_top_view.plot_map(tmp_path / "map.png", ests["ekf-joint"], gt_pos, ests["smoother"].landmarks))
     _check_png(plots.plot_error_over_distance(tmp_path / "err.png", ests, np.arange(70), truth[:70]))
     ekfs = {"ekf-joint": ests["ekf-joint"], "ekf-decoupled": _est("ekf-decoupled", noise=0.02)}
     _check_png(plots.plot_vs_smoother(tmp_path / "vs.png", ekfs, ests["smoother"]))
@@ -57,8 +57,8 @@ def test_all_figures_are_written(tmp_path, ests):
 def test_figures_without_ground_truth_or_landmarks(tmp_path, ests):
     bare = _est("dead-reckoning")
     bare.landmarks[:] = np.nan
-    _check_png(plots.plot_trajectories(tmp_path / "t.png", {"dead-reckoning": bare}))
-    _check_png(plots.plot_map(tmp_path / "m.png", bare))
+    _check_png(plots_top_view.plot_trajectories(tmp_path / "t.png", {"dead-reckoning": bare}))
+    _check_png(plots_top_view.plot_map(tmp_path / "m.png", bare))
     _check_png(plots.plot_vs_smoother(tmp_path / "v.png", {}, ests["smoother"]))
 
 
@@ -71,13 +71,13 @@ def test_distance_travelled():
 def figures(monkeypatch):
     """The Figure objects the plot functions save, in order (they are still written)."""
     seen = []
-    save = plots._save
+    save = plots.save_figure
 
     def capture(fig, path):
         seen.append(fig)
         return save(fig, path)
 
-    monkeypatch.setattr(plots, "_save", capture)
+    monkeypatch.setattr(plots, "save_figure", capture)
     return seen
 
 
@@ -103,7 +103,7 @@ def test_coinciding_estimators_stay_distinguishable(tmp_path, figures):
     assert plots.coincident({n: e.positions for n, e in ests.items()}) == {
         "ekf-joint": ["ekf-invariant"], "ekf-invariant": ["ekf-joint"], "ekf-decoupled": []}
     gt = _est("smoother").poses
-    plots.plot_trajectories(tmp_path / "t.png", ests, gt[:, :3, 3])
+    plots_top_view.plot_trajectories(tmp_path / "t.png", ests, gt[:, :3, 3])
     plots.plot_error_over_distance(tmp_path / "e.png", ests, np.arange(80), gt)
     for fig in figures:
         texts = _legend_texts(fig)
@@ -165,7 +165,7 @@ def test_map_says_what_it_leaves_out(tmp_path, figures):
     est = _est("ekf-joint")
     est.landmarks[3] = [5000.0, 0.0, 0.0]  # far off the drive
     truth = est.landmarks + 0.1
-    plots.plot_map(tmp_path / "m.png", est, truth_landmarks=truth)
+    plots_top_view.plot_map(tmp_path / "m.png", est, truth_landmarks=truth)
     ax = figures[-1].axes[0]
     title = ax.get_title().replace("\n", " ")
     assert "26 of 27 estimated landmarks shown" in title, title
@@ -174,3 +174,31 @@ def test_map_says_what_it_leaves_out(tmp_path, figures):
     estimates, truths = ax.collections
     assert truths.get_zorder() > estimates.get_zorder(), "truth drawn on top"
     assert len(truths.get_facecolors()) == 0 or truths.get_facecolors()[0][3] == 0, "hollow"
+
+
+def test_a_drifting_estimate_runs_off_the_top_view_and_says_how_far(tmp_path, figures):
+    """Dead reckoning on a raw IMU drifts tens of metres in a 30 s room flight: the view keeps
+    to the truth and the estimates near it, and the drifting one's legend says how far it goes;
+    the axes name the raw-IMU world (gravity-aligned, not forward/left at start)."""
+    near = _est("smoother-imu", T=80)
+    drift = _est("dead-reckoning-imu", T=80)
+    drift.poses = drift.poses.copy()
+    drift.poses[:, 1, 3] -= np.linspace(0, 300.0, 80)  # 300 m off a 7.9 m path
+    truth = near.poses[:, :3, 3]
+    plots_top_view.plot_trajectories(tmp_path / "t.png", {"dead-reckoning-imu": drift, "smoother-imu": near},
+                            truth, world="raw-imu")
+    ax = figures[-1].axes[0]
+    assert ax.get_xlabel() == plots_top_view.WORLD_AXES["raw-imu"][0]
+    assert ax.get_ylim()[0] > -20.0  # the 300 m drift does not set the view
+    texts = _legend_texts(figures[-1])
+    drifting = [t for t in texts if t.startswith("dead-reckoning-imu")]
+    assert drifting and "off the view, up to" in drifting[0], texts
+    assert "smoother-imu" in texts
+    # without ground truth, the estimate of the median extent anchors the view
+    plots_top_view.plot_trajectories(tmp_path / "u.png", {"dead-reckoning-imu": drift, "smoother-imu": near})
+    assert figures[-1].axes[0].get_ylim()[0] > -20.0
+    assert figures[-1].axes[0].get_xlabel() == plots_top_view.WORLD_AXES["velocity"][0]
+    # estimates that stay near each other all stay in view
+    plots_top_view.plot_trajectories(tmp_path / "v.png", {"smoother-imu": near, "ekf": _est("ekf", noise=0.01)},
+                            truth)
+    assert not any("off the view" in t for t in _legend_texts(figures[-1]))
