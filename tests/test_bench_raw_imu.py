@@ -35,7 +35,17 @@ def test_each_kind_of_drive_runs_its_estimators(drives):
     assert applicable(DEFAULT_BENCH + DEFAULT_BENCH_INERTIAL, drive) == list(DEFAULT_BENCH_INERTIAL)
 
 
-def test_bench_a_folder_of_both_kinds(drives, tmp_path, capsys):
+def test_bench_a_folder_of_both_kinds(drives, tmp_path, capsys, monkeypatch):
+    from vislam.eval import plots
+
+    drawn = {}
+    draw_nees = plots.plot_nees
+
+    def capture(path, series, **kwargs):  # the NEES figure's series, as drawn
+        drawn[path.parent.name] = series
+        return draw_nees(path, series, **kwargs)
+
+    monkeypatch.setattr(plots, "plot_nees", capture)
     folder, _ = drives
     out = tmp_path / "res"
     rc = main(["bench", str(folder), "-e", "dead-reckoning,dead-reckoning-imu", "--model", "as-given",
@@ -52,6 +62,9 @@ def test_bench_a_folder_of_both_kinds(drives, tmp_path, capsys):
     assert by_name["velocity"]["alignment"] == "se3"
     # dead reckoning from a rest on a noise-consistent drive: a pose NEES of its order
     assert 0.5 < row["nees_pose_mean"] < 15 and row["ate_aligned_m"] < 0.05
+    # the figure shows what summary.md and results.json say: the truth in the estimate's gauge
+    figure_mean = float(np.nanmean(drawn["imu-room-mono-2"]["dead-reckoning-imu"]))
+    assert figure_mean == pytest.approx(row["nees_pose_mean"], rel=1e-6)
     assert (out / "imu-room-mono-2" / "dead-reckoning-imu.estimate.npz").is_file()
 
 
