@@ -46,7 +46,8 @@ from vislam.eval.eqvio import is_eqvio_csv, read_eqvio_tracks
 from vislam.eval.imu_streams import (check_gaps, check_unique_observations, cut_to_frames,
                                      frames_inside_imu, observations, snap_to_samples)
 from vislam.eval.safe_reading import read_text
-from vislam.eval.text_tables import check_increasing, read_table
+from vislam.eval.export import check_increasing
+from vislam.eval.text_tables import read_table
 
 #: Largest sensor.yaml read.
 MAX_YAML_BYTES = 2**20

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from vislam.ekf.errors import InputError
-from vislam.eval.export import _check_increasing, _numeric_lines, _write_text
+from vislam.eval.export import _numeric_lines, _write_text, check_increasing
 
 #: How far from symmetric a covariance may be, relative to sqrt(C_ii C_jj) (text with 7 digits).
 SYMMETRY_TOL = 1e-6
@@ -135,7 +135,7 @@ def _covariances_npy(path: Path) -> np.ndarray:
 def _covariances_text(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     data, lines = _numeric_lines(path, "covariance file", 37,
                                  "37 (timestamp and the 6x6 covariance, row-major)", empty="no lines")
-    _check_increasing(path, data[:, 0], lines)
+    check_increasing(path, "covariance file", data[:, 0], lines)
     return data[:, 0].copy(), data[:, 1:].reshape(-1, 6, 6), lines
 
 

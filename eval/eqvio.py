@@ -32,11 +32,10 @@ from vislam.ekf.errors import InputError
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.geometry import se3_inv
 from vislam.ekf.inertial import STANDARD_GRAVITY, ImuNoise, InertialCalibration, InertialDrive
-from vislam.eval.export import MAX_TEXT_BYTES
+from vislam.eval.export import MAX_TEXT_BYTES, check_increasing
 from vislam.eval.safe_reading import read_text
 from vislam.eval.imu_streams import (check_gaps, check_unique_observations, frames_inside_imu,
                                      observations)
-from vislam.eval.text_tables import check_increasing
 
 #: The file's name inside the gtsam package (``vislam convert eqvio``).
 EQVIO_FILE = "eqvio_processed_30s.csv"

@@ -213,12 +213,19 @@ def _column_error(path, number: int, got: int, expected: str, hint: str = "") ->
     return InputError(f"{path}: line {number} has {got} columns, expected {expected}{hint}")
 
 
-def _check_increasing(path, times: np.ndarray, lines: np.ndarray) -> None:
-    bad = np.flatnonzero(~(np.diff(times) > 0))
+def check_increasing(path, what: str, stamps: np.ndarray, lines: np.ndarray,
+                     column: str = "time stamp") -> None:
+    """Stamps strictly increasing: the first duplicate, step back or non-number is named by
+    its line, its value and the line before it (every text reader of stamped rows uses this
+    rule: ASL, eqvio, TUM and covariance files)."""
+    steps = np.diff(stamps)
+    bad = np.flatnonzero(~(steps > 0))
     if bad.size:
-        i = int(bad[0]) + 1
-        raise InputError(f"{path}: line {int(lines[i])}: time {times[i]!r} is not after the "
-                         f"previous line's {times[i - 1]!r} (timestamps must increase)")
+        i = int(bad[0])
+        kind = "duplicates" if steps[i] == 0 else "is earlier than" if steps[i] < 0 else "is not after"
+        raise InputError(f"{path}: line {int(lines[i + 1])}: {column} {stamps[i + 1]!r} {kind} "
+                         f"the one on line {int(lines[i])} ({stamps[i]!r}) ({what}; stamps must "
+                         "be strictly increasing)")
 
 
 def _numeric_lines(path, what: str, n_cols: int, expected: str, hint=None, empty: str = "no pose lines"
@@ -281,7 +288,7 @@ def read_tum_checked(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, n
                 "; an EuRoC CSV file? give --format euroc" if "," in fields[0] else "")
 
     data, lines = _numeric_lines(path, "TUM trajectory file", 8, f"8 ({_TUM_COLUMNS})", hint)
-    _check_increasing(path, data[:, 0], lines)
+    check_increasing(path, "TUM trajectory file", data[:, 0], lines)
     _check_translations(path, data[:, 1:4], lines)
     R = quaternion_rotations(path, data[:, 4:8], lines)
     return data[:, 0].copy(), _poses_from(R, data[:, 1:4]), lines
@@ -340,7 +347,7 @@ def read_euroc_state(path: str | os.PathLike
         raise InputError(f"{path}: EuRoC CSV file has no pose lines")
     data, lines = np.asarray(rows), np.asarray(lines, dtype=np.int64)
     times = np.asarray(times, dtype=float)
-    _check_increasing(path, times, lines)
+    check_increasing(path, "EuRoC/ASL trajectory file", times, lines)
     _check_translations(path, data[:, 0:3], lines)
     R = quaternion_rotations(path, data[:, [4, 5, 6, 3]], lines)  # w x y z -> x y z w
     state = data[:, 7:16].copy() if widths == {17} else None

@@ -85,18 +85,6 @@ def read_table(path: Path, what: str, widths: tuple[int, ...], delimiter: str | 
                  np.asarray(lines, dtype=np.int64), header)
 
 
-def check_increasing(path: Path, what: str, stamps: np.ndarray, lines: np.ndarray,
-                     column: str = "time stamp") -> None:
-    """Stamps strictly increasing: a duplicate or a step back is named by its line."""
-    steps = np.diff(stamps)
-    bad = np.flatnonzero(steps <= 0)
-    if bad.size:
-        i = int(bad[0])
-        kind = "duplicates" if steps[i] == 0 else "is earlier than"
-        raise InputError(f"{path}: line {int(lines[i + 1])}: {column} {kind} the one on line "
-                         f"{int(lines[i])} ({what}; stamps must be strictly increasing)")
-
-
 def _is_number(text: str) -> bool:
     try:
         float(text)

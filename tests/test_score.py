@@ -293,7 +293,7 @@ def _hostile_cases():
         ("zero quaternion", tum(_GOOD + "0.1 0 0 0 0 0 0 0\n"), ["line 2", "zero quaternion"]),
         ("non-unit quaternion", tum(_GOOD + "0.1 0 0 0 0 0 0 2\n"), ["line 2", "norm 2"]),
         ("not increasing", tum(_GOOD + "0.1 0 0 0 0 0 0 1\n0.1 0 0 0 0 0 0 1\n"),
-         ["line 3", "timestamps must increase"]),
+         ["line 3", "duplicates the one on line 2", "strictly increasing"]),
         ("nan", tum(_GOOD + "nan 0 0 0 0 0 0 1\n"), ["line 2", "not a finite number"]),
         ("empty", tum("# nothing\n"), ["no pose lines"]),
         ("kitti in a .txt", ("traj.txt", "1 0 0 0 0 1 0 0 0 0 1 0\n"), ["12 columns", "--format kitti"]),
