@@ -155,6 +155,25 @@ def _noise_without_rotation(dt: float, noise: ImuNoise) -> np.ndarray:
     return Q
 
 
+def held_pieces(time: np.ndarray, t0: float, t1: float) -> list[tuple[int, float]]:
+    """The scheme's pieces of ``[t0, t1]``: ``(j, dt)`` for each sample ``j`` held from
+    ``max(t_j, t0)`` until ``min(t_j+1, t1)`` (the last one until ``t1``), pieces of zero
+    length left out. The rule of every raw-IMU estimator: this integration and the smoother's
+    preintegration (:func:`graph.inertial_factors.preintegrate`). EstimationError when no sample
+    is at or before ``t0``."""
+    time = np.asarray(time, dtype=float)
+    if time.size == 0 or time[0] > t0:
+        first = "none" if time.size == 0 else f"the first at {time[0]:.6f} s"
+        raise EstimationError(f"strapdown: no IMU sample at or before t={t0:.6f} s ({first})")
+    ends = np.append(time[1:], t1)
+    pieces = []
+    for j in range(time.size):
+        dt = float(min(ends[j], t1) - max(time[j], t0))
+        if dt > 0:
+            pieces.append((j, dt))
+    return pieces
+
+
 def integrate(state: NavState, P: np.ndarray | None, imu: ImuSamples, t0: float, t1: float,
               g_world: np.ndarray, noise: ImuNoise | None = None
               ) -> tuple[NavState, np.ndarray | None]:
@@ -163,19 +182,10 @@ def integrate(state: NavState, P: np.ndarray | None, imu: ImuSamples, t0: float,
     :meth:`ekf.inertial.InertialDrive.imu_between` gives them), each held until the next one
     or ``t1``. ``noise`` is needed with ``P``. EstimationError when no sample is at or before
     ``t0``."""
-    time = np.asarray(imu.time, dtype=float)
-    if time.size == 0 or time[0] > t0:
-        first = "none" if time.size == 0 else f"the first at {time[0]:.6f} s"
-        raise EstimationError(f"strapdown: no IMU sample at or before t={t0:.6f} s ({first})")
-    ends = np.append(time[1:], t1)
     R, v, p, bg, ba = state.R, state.v, state.p, state.bg, state.ba
     q_cache: dict[float, np.ndarray] = {}
     sg2 = 0.0 if noise is None else noise.gyro_noise_density ** 2
-    for j in range(time.size):
-        start, end = max(time[j], t0), min(ends[j], t1)
-        dt = float(end - start)
-        if dt <= 0:
-            continue
+    for j, dt in held_pieces(imu.time, t0, t1):
         dR, Jr = exp_and_right_jacobian((imu.gyro[j] - bg) * dt)
         a = imu.accel[j] - ba
         acc = g_world + R @ a

@@ -121,13 +121,44 @@ def test_preintegration_reproduces_exact_motion(t0, t1):
     np.testing.assert_allclose(end.velocity(), v1, atol=1e-9)
 
 
-def test_interval_pieces_interpolate_at_frame_times():
+def test_interval_pieces_hold_each_sample_until_the_next_as_the_strapdown_does():
     t = np.array([0.0, 0.1, 0.2, 0.3])
     gyro = np.array([[0, 0, 0.0], [0, 0, 1.0], [0, 0, 2.0], [0, 0, 3.0]])
     imu = ImuSamples(t, np.zeros((4, 3)), gyro)
     _, w, dt = interval_pieces(imu, 0.05, 0.25)
     np.testing.assert_allclose(dt, [0.05, 0.1, 0.05])
-    np.testing.assert_allclose(w[:, 2], [0.75, 1.5, 2.25])  # means of the linear signal
+    np.testing.assert_allclose(w[:, 2], [0.0, 1.0, 2.0])  # the sample at or before each piece
+    _, w, dt = interval_pieces(imu, 0.1, 0.3)  # interval ends on samples
+    np.testing.assert_allclose(dt, [0.1, 0.1])
+    np.testing.assert_allclose(w[:, 2], [1.0, 2.0])
+    _, w, dt = interval_pieces(imu, 0.25, 0.4)  # past the last sample: it is held
+    np.testing.assert_allclose(dt, [0.05, 0.1])
+    np.testing.assert_allclose(w[:, 2], [2.0, 3.0])
+    with pytest.raises(EstimationError, match="no IMU sample at or before"):
+        interval_pieces(imu, -0.1, 0.1)
+
+
+def test_preintegration_and_strapdown_agree_on_a_simulated_drive():
+    """The smoother's preintegrated interval and the filters' strapdown integrate the same
+    signal (one rule for the samples): the same state at the next frame to 1e-9."""
+    from vislam.ekf.strapdown import NavState, integrate
+    from vislam.eval.imu_sim import simulate_imu
+    from vislam.eval.imu_sim_config import ImuSimConfig
+
+    drive, truth = simulate_imu(ImuSimConfig(n_frames=81, seed=4))
+    k0, k1 = 50, 51
+    t0, t1 = drive.timestamps[k0], drive.timestamps[k1]
+    R0, p0 = truth.frame_poses[k0][:3, :3], truth.frame_poses[k0][:3, 3]
+    v0 = truth.frame_velocity[k0]
+    g = drive.calibration.gravity
+    pim = preintegrate(drive.imu, t0, t1, preintegration_params(drive.calibration.noise, g),
+                       gtsam.imuBias.ConstantBias())
+    end = pim.predict(gtsam.NavState(gtsam.Rot3(R0), p0, v0), gtsam.imuBias.ConstantBias())
+    mine, _ = integrate(NavState(R0, v0, p0, np.zeros(3), np.zeros(3)), None, drive.imu, t0, t1,
+                        np.array([0.0, 0.0, -g]))
+    np.testing.assert_allclose(end.attitude().matrix(), mine.R, atol=1e-9)
+    np.testing.assert_allclose(end.velocity(), mine.v, atol=1e-9)
+    np.testing.assert_allclose(end.position(), mine.p, atol=1e-9)
 
 
 def test_preintegration_noise_is_the_continuous_density_squared():
