@@ -123,6 +123,7 @@ def test_with_imu_the_estimators_are_the_raw_imu_group():
     (["--imu", "-e", "ekf-joint"], "'ekf-joint'"),
     (["--imu", "-e", "smoother-imu,dead-reckoning"], "'dead-reckoning'"),
     (["-e", "dead-reckoning-imu"], "'dead-reckoning-imu'"),
+    (["--imu", "--frames", "12001"], "--frames"),
 ])
 def test_flags_of_the_other_kind_are_one_line_exit_2(argv, flag, tmp_path, capsys):
     out = tmp_path / "nees"

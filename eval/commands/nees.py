@@ -99,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
         smoother_settings_from_args,
     )
     from vislam.eval.executors import check_executor, executor_settings
+    from vislam.eval.imu_sim_config import MAX_IMU_SIM_FRAMES
     from vislam.eval.montecarlo import monte_carlo_nees
     from vislam.eval.output_dir import OutputDir
     from vislam.eval.registry import estimators_from_flag
@@ -114,6 +115,9 @@ def run(args: argparse.Namespace) -> int:
                          "drive is built up front, about 1 MB each)")
     if args.frames is not None and args.frames < 2:
         raise InputError(f"--frames must be >= 2, got {args.frames}")
+    if imu and args.frames is not None and args.frames > MAX_IMU_SIM_FRAMES:
+        raise InputError(f"--frames: at most {MAX_IMU_SIM_FRAMES} with --imu (the raw-IMU "
+                         f"simulator's longest drive, 10 minutes at 20 Hz), got {args.frames}")
     depth = args.sim_max_depth
     if depth is not None and (why := sim_depth_error(depth)):
         raise InputError(f"--sim-max-depth {why}")
