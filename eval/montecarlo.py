@@ -28,6 +28,14 @@ from vislam.eval.consistency import (
     landmark_nees,
     pose_nees,
 )
+from vislam.eval.imu_sim_config import ImuSimConfig
+from vislam.eval.montecarlo_imu import (
+    IMU_NOISE_WORDS,
+    imu_monte_carlo_drives,
+    imu_nees_config,
+    run_seed,
+    truth_in_estimate_gauge,
+)
 from vislam.eval.registry import display_name
 from vislam.eval.sim_config import SIM_UPPER_BOUNDS
 from vislam.eval.sim_drawing import drifting_noise
@@ -196,24 +204,33 @@ def run_monte_carlo(sim_config, runs: int, estimators: Mapping[str, Any], config
                     show_progress: bool = False, executor: str = "local",
                     scheduler: str | None = None) -> MonteCarloRuns:
     """Every estimator of ``estimators`` ({label: name, ``MODULE:FUNCTION`` or callable}) on
-    ``runs`` noise draws of ``sim_config``'s drive (:func:`monte_carlo_drives`), reduced run by
-    run to the NEES arrays (no estimate is kept). ``reference`` a label among ``estimators``
+    ``runs`` noise draws of ``sim_config``'s drive (:func:`monte_carlo_drives`; an
+    :class:`eval.imu_sim_config.ImuSimConfig`: :func:`eval.montecarlo_imu.imu_monte_carlo_drives`,
+    each estimate scored against the truth in its own gauge), reduced run by run to the NEES
+    arrays (no estimate is kept). ``reference`` a label among ``estimators``
     the others are compared with (None: none). ``isolate_user_estimators``: a user's estimator
     that raises or breaks the Estimate contract stops only its own runs (recorded as a
     failure), instead of the whole study (:func:`eval.study.run_groups`). ``jobs``,
     ``executor`` and ``scheduler``: where the runs go; the numbers depend on none of them."""
     if reference is not None and reference not in estimators:
         raise ValueError(f"reference {reference!r} is not among the estimators")
-    truth, seqs = monte_carlo_drives(sim_config, runs)
-    T = truth.sequence.n_frames
-    out = MonteCarloRuns(sim_config, runs, T, truth.sequence.timestamps, reference,
-                         tuple(estimators))
+    raw_imu = isinstance(sim_config, ImuSimConfig)
+    if raw_imu:  # the truth moves into each estimate's gauge (eval.montecarlo_imu)
+        imu_truth, free, seqs = imu_monte_carlo_drives(sim_config, runs)
+        true_poses, true_landmarks = imu_truth.frame_poses, imu_truth.landmarks
+        timestamps = free.timestamps
+    else:
+        truth, seqs = monte_carlo_drives(sim_config, runs)
+        true_poses, true_landmarks = truth.poses, truth.landmarks
+        timestamps = truth.sequence.timestamps
+    T = timestamps.size
+    out = MonteCarloRuns(sim_config, runs, T, timestamps, reference, tuple(estimators))
     by_run: dict[str, list[str]] = {}  # display name -> its labels (one run serves them all)
     for label, spec in estimators.items():
         by_run.setdefault(display_name(spec), []).append(label)
     for n in estimators:
         out.pose_nees[n] = np.full((runs, T), np.nan)
-        out.landmark_nees[n] = np.full((runs, truth.landmarks.shape[0]), np.nan)
+        out.landmark_nees[n] = np.full((runs, true_landmarks.shape[0]), np.nan)
         out.completed[n] = np.zeros(runs, dtype=bool)
         out.failures[n] = []
         out.runtime_s[n] = []
@@ -238,8 +255,11 @@ def run_monte_carlo(sim_config, runs: int, estimators: Mapping[str, Any], config
                 out.failures[n].append(RunFailure(res.sequence, res.error))
             return
         est = res.estimate
-        pn = pose_nees(est, frames_all, truth.poses)
-        ln = landmark_nees_by_source(est, truth.landmarks)
+        poses, landmarks = true_poses, true_landmarks
+        if raw_imu:
+            poses, landmarks = truth_in_estimate_gauge(seqs[res.sequence], est, poses, landmarks)
+        pn = pose_nees(est, frames_all, poses)
+        ln = landmark_nees_by_source(est, landmarks)
         for n in labels:
             out.pose_nees[n][i] = pn
             out.landmark_nees[n][i] = ln
@@ -285,15 +305,29 @@ def monte_carlo_nees(
     sim_max_depth: float | None = None,
     executor: str = "local",
     scheduler: str | None = None,
+    *,
+    imu: bool = False,
+    scenario: str = "room",
+    camera: str = "mono",
 ) -> dict:
     """ANEES of pose (6 dof, steps 1..T-1) and landmarks (3 dof) over ``runs`` noise draws of
     one simulated drive (seed ``seed``, landmarks up to ``sim_max_depth`` m deep: see
     :func:`nees_sim_config`); the nees.json content. ``executor`` and ``scheduler``: where the
-    runs go (:func:`eval.study.run_jobs`); the numbers do not depend on it, nor on ``jobs``."""
+    runs go (:func:`eval.study.run_jobs`); the numbers do not depend on it, nor on ``jobs``.
+
+    ``imu``: raw-IMU drives of the raw-IMU simulator instead (``scenario``, ``camera``: the
+    scene of :func:`eval.montecarlo_imu.imu_nees_config`, each run with its own simulator seed),
+    each estimate scored against the truth in its own gauge; ``sim_max_depth`` must be None."""
     smoother = smoother if smoother is not None else SmootherSettings()
     if runs < 1:
         raise InputError(f"--runs must be >= 1, got {runs}")
-    sim_config = nees_sim_config(seed, frames, sim_max_depth)
+    if imu and sim_max_depth is not None:
+        raise InputError("--sim-max-depth: a setting of the velocity simulator; the raw-IMU "
+                         "simulator sees landmarks within its scenario's range")
+    if imu:
+        sim_config = imu_nees_config(seed, scenario, camera, frames)
+    else:
+        sim_config = nees_sim_config(seed, frames, sim_max_depth)
     # a user's callable by MODULE:FUNCTION
     study = run_monte_carlo(sim_config, runs, {display_name(e): e for e in estimators}, config,
                             smoother=smoother, jobs=jobs, show_progress=show_progress,
@@ -302,7 +336,9 @@ def monte_carlo_nees(
         "runs": runs,
         "seed": seed,
         "frames": study.frames,
-        "noise": "velocity and pixel noise redrawn per run (numpy default_rng([seed, run])) on "
+        "drive_kind": "raw-imu" if imu else "velocity",
+        "noise": IMU_NOISE_WORDS if imu else
+                 "velocity and pixel noise redrawn per run (numpy default_rng([seed, run])) on "
                  "the noise-free drive of SimConfig(seed); trajectory, landmarks, tracks fixed",
         "definition": "anees_pose: mean over steps 1..T-1 of the per-step NEES averaged over runs; "
                       "anees_landmark: mean over landmarks (estimated in every run) of the per-"
@@ -310,6 +346,10 @@ def monte_carlo_nees(
                       "verdict 'above' = overconfident, 'below' = underconfident; "
                       "inside_fraction = share of steps / landmarks inside the bounds",
         "simulation": dataclasses.asdict(sim_config),
+        **({"noise_seeds": [run_seed(seed, i) for i in range(runs)],
+            "truth": "in each estimate's gauge: moved about gravity and translated onto its "
+                     "frame-0 yaw and position (eval.bench_scores.truth_in_gauge), landmarks "
+                     "by the same move"} if imu else {}),
         "filter": config.to_dict(),
         "smoother": smoother.to_dict(),
         "estimators": {},
