@@ -60,7 +60,7 @@ its covariance moved into the invariant error by RI-6's ``S``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.linalg import solve_triangular
@@ -130,6 +130,7 @@ class ImuInvariantEKF:
     pixels."""
 
     name = ESTIMATOR_NAME
+    drive_kind = "raw-imu"
 
     def __init__(self, settings: FilterSettings = FilterSettings(),
                  initial: InitialState | None = None):
@@ -138,7 +139,14 @@ class ImuInvariantEKF:
 
     # ------------------------------------------------------------------ protocol
     def initialise(self, drive: InertialDrive, config=None, guard=None) -> None:
+        """Start at frame 0 from the rest (or the given initial state). From ``config``
+        (:class:`ekf.config.FilterConfig`, as every filter of the bench gets it) the pixel sigma
+        and the gate probability; the rest from :class:`FilterSettings`."""
         s = self.settings
+        if config is not None:
+            s = replace(s, pixel_sigma=float(config.pixel_sigma),
+                        gate_probability=config.gate_probability)
+            self.settings = s
         cal = drive.calibration
         self.guard = guard
         self.times = np.asarray(drive.timestamps, dtype=float)
@@ -182,7 +190,8 @@ class ImuInvariantEKF:
         k = int(motion.frame)
         if motion.imu is None:
             raise InputError(f"{ESTIMATOR_NAME}: frame {k}: no IMU samples in the motion input")
-        t0, t1 = float(self.times[k - 1]), float(self.times[k])
+        t0 = float(self.times[k - 1] if motion.start is None else motion.start)
+        t1 = float(self.times[k] if motion.end is None else motion.end)
         x, Phi, Qc = propagate(self.x, motion.imu, t0, t1, self.g_world, self.noise)
         self.P = frame_covariance(self.P, Phi, Qc, self.lm, self.in_group)
         self.x = x
