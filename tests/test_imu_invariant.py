@@ -1,0 +1,212 @@
+"""``ekf-imu-invariant`` (ekf.imu_invariant): measurement, new-landmark and group-joining
+Jacobians against finite differences, the Estimate read-out, the filter end to end on short
+simulated drives (stereo and mono, through the per-frame driver) and EuRoC V1_01's first 30 s
+(regression tier; skipped without the data)."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.numdiff import numeric_jacobian
+from vislam.ekf import imu_landmarks as iml
+from vislam.ekf import inverse_depth as idp
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.driver import run_filter
+from vislam.ekf.geometry import se3_inv, se3_log, so3_exp
+from vislam.ekf.imu_invariant import POSE_COLS, FilterSettings, ImuInvariantEKF
+from vislam.ekf.imu_invariant_propagation import N_CORE, ROT, retract, retract_landmarks
+from vislam.ekf.strapdown import NavState
+from vislam.eval.imu_sim import simulate_imu
+from vislam.eval.imu_sim_config import ImuSimConfig
+from vislam.graph.inertial_init import in_estimate_gauge
+
+K = np.array([[450.0, 0, 370], [0, 460, 250], [0, 0, 1]])
+
+
+def _setup(baseline, rng=None):
+    """A filter with one group landmark and one inverse-depth landmark (anchored in an older
+    camera), without running a drive."""
+    rng = rng or np.random.default_rng(0)
+    x0 = NavState(so3_exp(rng.normal(size=3)), rng.normal(size=3), rng.normal(size=3),
+                  np.zeros(3), np.zeros(3))
+    cam_T_imu = np.eye(4)
+    cam_T_imu[:3, :3] = so3_exp(rng.normal(size=3))
+    cam_T_imu[:3, 3] = 0.1 * rng.normal(size=3)
+    f = ImuInvariantEKF()
+    f.x = x0
+    f.cam_T_imu, f.imu_T_cam = cam_T_imu, se3_inv(cam_T_imu)
+    f.camera = iml.PixelModel(K, cam_T_imu, baseline)
+    f.rows = f.camera.rows
+    wTc = x0.pose @ f.imu_T_cam
+    anchor = wTc.copy()
+    anchor[:3, 3] += [0.2, -0.1, 0.05]
+    anchor[:3, :3] = anchor[:3, :3] @ so3_exp([0.02, -0.03, 0.01])
+    p_group = (wTc @ np.r_[0.3, -0.2, 3.0, 1.0])[:3]
+    p_id = (wTc @ np.r_[-0.1, 0.2, 5.0, 1.0])[:3]
+    f.lm = np.array([p_group, idp.from_world(p_id[None], anchor[None, :3, :3],
+                                             anchor[None, :3, 3])[0]])
+    f.in_group = np.array([True, False])
+    f.anchor_R = np.stack([np.eye(3), anchor[:3, :3]])
+    f.anchor_p = np.stack([np.zeros(3), anchor[:3, 3]])
+    return f
+
+
+@pytest.mark.parametrize("baseline", [None, 0.11])
+def test_measurement_jacobians_against_finite_differences(baseline):
+    """IIE-1: H of a group landmark (B [0, -I, I]) and of an inverse-depth one (IL-2 chained
+    through RI-6) against finite differences of the predicted pixels of the retracted state;
+    no column but xi_R, xi_p and the landmark's own."""
+    f = _setup(baseline)
+    slots = np.array([0, 1])
+    _, Hp, Hl, _ = f._jacobians(slots)
+
+    def pixels(d):
+        g = _setup(baseline)
+        g.x = retract(f.x, d[:N_CORE])
+        g.lm[0] = retract_landmarks(f.lm[:1], d[ROT], d[None, 15:18])[0]
+        g.lm[1] = f.lm[1] + d[18:21]
+        return g._jacobians(slots)[0]
+
+    num = numeric_jacobian(pixels, np.zeros(N_CORE + 6))
+    np.testing.assert_allclose(num[:, :, POSE_COLS], Hp, rtol=1e-6, atol=1e-5)
+    assert np.abs(np.delete(num[:, :, :N_CORE], POSE_COLS, axis=2)).max() == 0
+    np.testing.assert_allclose(num[0, :, 15:18], Hl[0], rtol=1e-6, atol=1e-5)
+    np.testing.assert_allclose(num[1, :, 18:21], Hl[1], rtol=1e-6, atol=1e-5)
+    assert np.abs(num[0, :, 18:]).max() == 0 and np.abs(num[1, :, 15:18]).max() == 0
+
+
+def test_new_inverse_depth_landmark_jacobian_and_gauge():
+    """IIE-2: a new landmark's chart error is dx = C Ad(cam_T_imu) E xi (the anchor is the
+    estimated camera), against finite differences of the landmark read in the estimated and
+    the true camera; and it moves with a change of world exactly as ID-7 says."""
+    f = _setup(None)
+    x0 = f.x
+    wTc = x0.pose @ f.imu_T_cam
+    m = (wTc @ np.r_[0.3, -0.2, 3.0, 1.0])[:3]
+
+    def chart(xi):
+        wTc_true = retract(x0, xi).pose @ f.imu_T_cam
+        x_meas = idp.from_world(m[None], wTc_true[None, :3, :3], wTc_true[None, :3, 3])[0]
+        x_state = idp.from_world(m[None], wTc[None, :3, :3], wTc[None, :3, 3])[0]
+        return x_state - x_meas
+
+    from vislam.ekf.geometry import adjoint
+    from vislam.ekf.imu_invariant_propagation import estimate_pose_jacobian
+    x = idp.from_world(m[None], wTc[None, :3, :3], wTc[None, :3, 3])
+    J = iml.chart_change_jacobian(x)[0] @ adjoint(f.cam_T_imu) @ estimate_pose_jacobian(x0)
+    np.testing.assert_allclose(J, numeric_jacobian(chart, np.zeros(N_CORE)), atol=1e-8)
+    N = np.zeros((N_CORE, 6))  # a change of world [v; w] in the invariant error
+    N[6:9, :3] = np.eye(3)
+    N[0:3, 3:] = np.eye(3)
+    np.testing.assert_allclose(J @ N, idp.gauge_rows(x, wTc[None, :3, :3], wTc[None, :3, 3])[0],
+                               atol=1e-12)
+
+
+def test_joining_the_group_keeps_the_world_covariance():
+    """IIE-4: an inverse-depth slot joining the group keeps its world mean and covariance and
+    its world-frame cross-covariance with the pose (xi_l = J dx + l^ xi_R)."""
+    rng = np.random.default_rng(3)
+    f = _setup(None, rng)
+    n = N_CORE + 6
+    A = rng.normal(size=(n, n))
+    f.P = 1e-3 * A @ A.T
+    f.settings = FilterSettings(inverse_depth_linearity=1e9)
+    f.counts = {"n_joined_group": 0}
+    slots = np.arange(2)
+    mean0, cov0 = f._world(slots)
+    rows = N_CORE + 3 + np.arange(3)
+    J = idp.world_jacobian(f.lm[1:], f.anchor_R[1:])[0]
+    cross0 = J @ f.P[rows][:, ROT]  # world error of the point vs xi_R
+    f._join_group()
+    assert f.in_group.all() and f.counts["n_joined_group"] == 1
+    mean1, cov1 = f._world(slots)
+    np.testing.assert_allclose(mean1, mean0, atol=1e-12)
+    np.testing.assert_allclose(cov1, cov0, rtol=1e-9, atol=1e-12)
+    L = np.array([[0, -f.lm[1, 2], f.lm[1, 1]], [f.lm[1, 2], 0, -f.lm[1, 0]],
+                  [-f.lm[1, 1], f.lm[1, 0], 0]])
+    cross1 = f.P[rows][:, ROT] - L @ f.P[ROT][:, ROT]
+    np.testing.assert_allclose(cross1, cross0, rtol=1e-9, atol=1e-12)
+
+
+def _run(camera, n_frames=201, seed=1, scenario="room"):
+    drive, truth = simulate_imu(ImuSimConfig(scenario=scenario, camera=camera, seed=seed,
+                                             n_frames=n_frames))
+    est = run_filter(ImuInvariantEKF(), drive, FilterConfig())
+    gt = in_estimate_gauge(truth.frame_poses, est.poses[0][None])
+    xi = se3_log(np.einsum("nij,njk->nik", se3_inv(est.poses), gt))
+    nees = np.einsum("ni,ni->n", xi, np.linalg.solve(est.pose_cov, xi[:, :, None])[:, :, 0])
+    err = np.linalg.norm(est.poses[:, :3, 3] - gt[:, :3, 3], axis=1)
+    return est, nees, err
+
+
+def test_stereo_room_drive_end_to_end():
+    """10 s of the simulated room drive, stereo, through run_filter: centimetre accuracy, a
+    consistent pose covariance (mean NEES of one run well inside a loose band), the Estimate's
+    contract and info."""
+    est, nees, err = _run("stereo")
+    assert est.estimator == "ekf-imu-invariant"
+    assert err.max() < 0.03, err.max()
+    assert 1.0 < nees[1:].mean() < 15.0, nees[1:].mean()
+    assert est.info["initialisation"] == "rest" and est.info["world_frame"].startswith("gravity")
+    assert np.isfinite(est.landmarks[est.has_landmark]).all()
+    np.testing.assert_allclose(est.pose_cov, np.swapaxes(est.pose_cov, 1, 2), atol=1e-15)
+
+
+def test_mono_room_drive_end_to_end():
+    """The same drive with one camera: landmarks start in inverse depth and join the group.
+    Measured (seeds 0-3, 201 frames): position errors of 1-9 cm against covariances a few
+    times too small (mean NEES 7-30, see docs/findings.md); pinned loosely."""
+    est, nees, err = _run("mono")
+    assert est.info["n_joined_group"] > 50
+    assert err.max() < 0.15, err.max()
+    assert nees[1:].mean() < 40.0, nees[1:].mean()
+
+
+def test_half_the_accelerometer_noise_is_caught():
+    """A deliberate break: the filter told half the accelerometer noise density grows
+    overconfident on the stereo room drive (mean NEES above the honest one's band)."""
+    from dataclasses import replace
+    drive, truth = simulate_imu(ImuSimConfig(camera="stereo", seed=1, n_frames=201))
+    cal = drive.calibration
+    noise = replace(cal.noise, accel_noise_density=cal.noise.accel_noise_density / 2,
+                    accel_random_walk=cal.noise.accel_random_walk / 2)
+    broken = replace(drive, calibration=replace(cal, noise=noise))
+    nees = []
+    for d in (drive, broken):
+        est = run_filter(ImuInvariantEKF(), d, FilterConfig())
+        gt = in_estimate_gauge(truth.frame_poses, est.poses[0][None])
+        xi = se3_log(np.einsum("nij,njk->nik", se3_inv(est.poses), gt))
+        nees.append(np.einsum("ni,ni->n", xi,
+                              np.linalg.solve(est.pose_cov, xi[:, :, None])[:, :, 0])[1:].mean())
+    assert nees[1] > 1.3 * nees[0], nees
+
+
+EUROC = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "euroc-v1_01"
+
+
+@pytest.mark.regression
+def test_euroc_first_30_s(tmp_path):
+    """EuRoC V1_01's first 30 s (the eqvio tracks, vislam run with no per-drive settings):
+    4-DoF-aligned ATE at most 0.08 m and at most twice the smoother's 0.0131 m, under 2 s of
+    filter time. Measured 2026-11-28: 0.020 m in 1.2 s; pose NEES against the truth 283 (the
+    smoother's 465; the target of 12 is not met)."""
+    if not (EUROC / "mav0").is_dir():
+        pytest.skip(f"EuRoC data absent ({EUROC})")
+    gt = EUROC / "groundtruth" / "V1_01_easy.csv"
+    vislam = shutil.which("vislam") or str(Path(sys.executable).parent / "vislam")
+    drive = tmp_path / "d" / "euroc.npz"
+    subprocess.run([vislam, "convert", str(EUROC), "--tracks", "eqvio", "--gt", str(gt),
+                    "--out", str(drive)], check=True, capture_output=True)
+    out = tmp_path / "run"
+    subprocess.run([vislam, "run", "-e", "ekf-imu-invariant", "--out", str(out), "--no-plots",
+                    "-q", str(drive)], check=True, capture_output=True, text=True)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["alignment"] == "yaw"
+    assert m["ate_aligned_m"] <= min(0.08, 2 * 0.0131), m["ate_aligned_m"]
+    assert m["runtime_s"] <= 2.0 * 3, m["runtime_s"]  # 2 s on one free core; slack for load
+    assert m["nees_pose_mean"] < 1000, m["nees_pose_mean"]  # measured 283: pinned, not met
