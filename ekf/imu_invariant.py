@@ -97,7 +97,8 @@ class FilterSettings:
     ``min_depth`` of the monocular depth prior (m); ``inverse_depth_linearity`` the linearity
     index below which an inverse-depth landmark joins the group (0: never);
     ``min_disparity`` px of a stereo pair to triangulate; ``max_landmarks`` slots;
-    ``max_unseen`` frames before a landmark leaves; ``max_depth`` m of a usable prediction."""
+    ``max_unseen`` frames before a landmark leaves; ``max_depth`` m of a usable prediction;
+    ``max_anchors`` anchor poses held at once (IIE-2)."""
 
     pixel_sigma: float = 1.0
     gate_probability: float | None = 0.999
@@ -107,8 +108,8 @@ class FilterSettings:
     max_landmarks: int = 40
     max_unseen: int = 2
     max_depth: float = 200.0
-    transport: bool | str = True
-    iterations: int = 1
+    max_anchors: int = 10
+    inverse_depth_prior: tuple[float, float] | None = None
     rest: RestConfig = RestConfig()
 
     def __post_init__(self) -> None:
@@ -119,8 +120,17 @@ class FilterSettings:
         if self.gate_probability is not None and not 0 < self.gate_probability < 1:
             raise InputError(f"{ESTIMATOR_NAME}: gate_probability must be in (0, 1), got "
                              f"{self.gate_probability!r}")
-        if self.max_landmarks < 0 or self.max_unseen < 0:
-            raise InputError(f"{ESTIMATOR_NAME}: max_landmarks and max_unseen must be >= 0")
+        if self.max_landmarks < 0 or self.max_unseen < 0 or self.max_anchors < 1:
+            raise InputError(f"{ESTIMATOR_NAME}: max_landmarks and max_unseen must be >= 0, "
+                             "max_anchors >= 1")
+
+
+@dataclass(frozen=True)
+class _Prior:
+    """An inverse-depth prior given as its mean and sigma (1/m)."""
+
+    rho: float
+    sigma: float
 
 
 class ImuInvariantEKF:
@@ -159,7 +169,8 @@ class ImuInvariantEKF:
         self.K, self.baseline = np.asarray(cal.K, dtype=float), cal.baseline
         self.rows = self.camera.rows
         self.pixel_var = s.pixel_sigma ** 2
-        self.prior = iml.DepthPrior(s.min_depth)
+        self.prior = (iml.DepthPrior(s.min_depth) if s.inverse_depth_prior is None
+                      else _Prior(*s.inverse_depth_prior))
         self.gate = None if s.gate_probability is None else chi2.ppf(s.gate_probability, self.rows)
         initial = self.initial
         if initial is None:
@@ -172,19 +183,25 @@ class ImuInvariantEKF:
         self.initial_used = initial
         self.x = initial.state
         S = strapdown_to_invariant(initial.state)
-        self.P = S @ np.asarray(initial.cov, dtype=float) @ S.T
+        self.n_anchor = int(s.max_anchors)
+        self.L0 = N_CORE + 6 * self.n_anchor  # first landmark row
+        self.P = np.zeros((self.L0, self.L0))
+        self.P[:N_CORE, :N_CORE] = S @ np.asarray(initial.cov, dtype=float) @ S.T
+        self.anchor_T = np.tile(np.eye(4), (self.n_anchor, 1, 1))  # cloned world_T_imu
+        self.anchor_used = np.zeros(self.n_anchor, dtype=bool)
+        self.anchor_frame = -np.ones(self.n_anchor, dtype=np.int64)
         n_tracks = int(drive.n_tracks)
         self.lm = np.zeros((0, 3))
         self.tracks = np.zeros(0, dtype=np.int64)
         self.in_group = np.zeros(0, dtype=bool)
-        self.anchor_R = np.zeros((0, 3, 3))
-        self.anchor_p = np.zeros((0, 3))
+        self.anchor_of = np.zeros(0, dtype=np.int64)  # the anchor of each slot (-1: in the group)
         self.last_seen = np.zeros(0, dtype=np.int64)
         self.slot_of = -np.ones(n_tracks, dtype=np.int64)
         self.map_mean = np.full((n_tracks, 3), np.nan)
         self.map_cov = np.full((n_tracks, 3, 3), np.nan)
         self.frame = 0
-        self.counts = {"n_joined_group": 0, "n_dropped_unseen": 0, "n_gated": 0}
+        self.counts = {"n_joined_group": 0, "n_dropped_unseen": 0, "n_gated": 0,
+                       "n_waiting_for_anchor": 0}
 
     def predict(self, motion: MotionInput) -> None:
         k = int(motion.frame)
@@ -193,7 +210,10 @@ class ImuInvariantEKF:
         t0 = float(self.times[k - 1] if motion.start is None else motion.start)
         t1 = float(self.times[k] if motion.end is None else motion.end)
         x, Phi, Qc = propagate(self.x, motion.imu, t0, t1, self.g_world, self.noise)
-        self.P = frame_covariance(self.P, Phi, Qc, self.lm, self.in_group)
+        # the anchors' rows do not move: as landmarks outside the group (RI-5)
+        still = np.zeros((2 * self.n_anchor, 3))
+        self.P = frame_covariance(self.P, Phi, Qc, np.vstack([still, self.lm]),
+                                  np.r_[np.zeros(2 * self.n_anchor, dtype=bool), self.in_group])
         self.x = x
         self.frame = k
         if not (np.isfinite(x.pose).all() and np.isfinite(self.P[:N_CORE, :N_CORE]).all()):
@@ -231,6 +251,7 @@ class ImuInvariantEKF:
         unseen = self.frame - self.last_seen > self.settings.max_unseen
         self.counts["n_dropped_unseen"] += int((unseen & ~gone).sum())
         self._drop(gone | unseen)
+        self._free_anchors()
 
     def pose(self) -> np.ndarray:
         return self.x.pose
@@ -273,9 +294,29 @@ class ImuInvariantEKF:
     def state_nav(self) -> NavState:
         return self.x
 
+    def _anchor_cams(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``world_T_cam`` of the anchors of inverse-depth ``slots``: ``(R_a (k, 3, 3), p_a (k, 3))``."""
+        T = self.anchor_T[self.anchor_of[slots]] @ self.imu_T_cam
+        return T[:, :3, :3], T[:, :3, 3]
+
+    def _anchor_rows(self, slots: np.ndarray) -> np.ndarray:
+        """The state rows (k, 6) of the anchors of ``slots`` (``[xi_R, xi_p]`` of the clone)."""
+        return N_CORE + 6 * self.anchor_of[slots][:, None] + np.arange(6)
+
+    def _anchor_map(self, slots: np.ndarray) -> np.ndarray:
+        """``Ad(cam_T_imu) E_a`` (k, 6, 6): the anchor camera's right perturbation of its
+        clone's error ``[xi_R, xi_p]`` (RI-6 at the clone)."""
+        T = self.anchor_T[self.anchor_of[slots]]
+        out = np.empty((slots.size, 6, 6))
+        for j in range(slots.size):
+            nav = NavState(T[j, :3, :3], np.zeros(3), T[j, :3, 3], np.zeros(3), np.zeros(3))
+            out[j] = self.ad_cam @ estimate_pose_jacobian(nav)[:, POSE_COLS]
+        return out
+
     def _jacobians(self, slots: np.ndarray):
-        """Predicted pixels (k, m), ``H_pose`` (k, m, 6) on ``[xi_R, xi_p]``, ``H_l`` (k, m, 3)
-        and the camera depth (k,) of the landmarks in ``slots`` (IIE-1)."""
+        """Predicted pixels (k, m), ``H_pose`` (k, m, 6) on ``[xi_R, xi_p]``, ``H_l`` (k, m, 3),
+        ``H_a`` (k, m, 6) on the slot's anchor clone (zero for group landmarks) and the camera
+        depth (k,) of the landmarks in ``slots`` (IIE-1)."""
         T = self.x.pose
         R, p = T[:3, :3], T[:3, 3]
         k = slots.size
@@ -286,46 +327,57 @@ class ImuInvariantEKF:
         i = ~g
         if i.any():
             s = slots[i]
-            q[i] = iml.imu_points(self.lm[s], self.anchor_R[s], self.anchor_p[s], T)
+            R_a, p_a = self._anchor_cams(s)
+            q[i] = iml.imu_points(self.lm[s], R_a, p_a, T)
         z, dz_dq, depth = self.camera.predict(q)
         Hp = np.zeros((k, self.rows, 6))
         Hl = np.empty((k, self.rows, 3))
+        Ha = np.zeros((k, self.rows, 6))
         if g.any():
             B = dz_dq[g, :, :3] @ R.T
             Hl[g] = B
             Hp[g, :, 3:] = -B
         if i.any():
-            s = slots[i]
-            Hl[i] = dz_dq[i] @ iml.landmark_jacobian(self.lm[s], self.anchor_R[s],
-                                                      self.anchor_p[s], T)
+            Hl[i] = dz_dq[i] @ iml.landmark_jacobian(self.lm[s], R_a, p_a, T)
             E = estimate_pose_jacobian(self.x)[:, POSE_COLS]
             Hp[i] = dz_dq[i] @ iml.pose_jacobian(q[i]) @ E
+            Ha[i] = dz_dq[i] @ iml.anchor_jacobian(self.lm[s], R_a, T) @ self._anchor_map(s)
         with np.errstate(divide="ignore", invalid="ignore"):
             depth = np.where(g, depth, depth / q[:, 3])
-        return z, Hp, Hl, depth
+        return z, Hp, Hl, Ha, depth
 
-    def _stacked(self, slots: np.ndarray, Hp: np.ndarray, Hl: np.ndarray):
-        """``P H^T`` (n, k m) and ``S = H P H^T + V`` (k m, k m) of the observations of
-        ``slots`` with Jacobians ``Hp`` (k, m, 6), ``Hl`` (k, m, 3) (IIE-1's sparse rows)."""
+    def _slot_rows(self, slots: np.ndarray) -> np.ndarray:
+        return self.L0 + 3 * slots[:, None] + np.arange(3)
+
+    def _anchor_or_zero_rows(self, slots: np.ndarray) -> np.ndarray:
+        """Anchor rows of ``slots`` (k, 6); group landmarks point at clone 0 (their ``H_a`` is
+        zero)."""
+        a = np.where(self.in_group[slots], 0, self.anchor_of[slots])
+        return N_CORE + 6 * a[:, None] + np.arange(6)
+
+    def _stacked(self, slots, Hp, Hl, Ha):
+        """``P H^T`` (n, k m) and ``S = H P H^T + V`` (k m, k m) (IIE-1's sparse rows: the
+        pose, the slot's own and its anchor's columns)."""
         P = self.P
         n, m, k = P.shape[0], self.rows, slots.size
-        li = N_CORE + 3 * slots[:, None] + np.arange(3)  # (k, 3)
+        li = self._slot_rows(slots)
+        ai = self._anchor_or_zero_rows(slots)
         PHt = (P[:, POSE_COLS] @ Hp.reshape(k * m, 6).T).reshape(n, k, m)
         PHt += np.einsum("nkc,kmc->nkm", P[:, li], Hl)
+        PHt += np.einsum("nkc,kmc->nkm", P[:, ai], Ha)
         PHt = PHt.reshape(n, k * m)
         S = Hp.reshape(k * m, 6) @ PHt[POSE_COLS, :]
         S += np.einsum("kmc,kcx->kmx", Hl, PHt[li]).reshape(k * m, k * m)
+        S += np.einsum("kmc,kcx->kmx", Ha, PHt[ai]).reshape(k * m, k * m)
         S = 0.5 * (S + S.T)
         S[np.diag_indices(k * m)] += self.pixel_var
         return PHt, S
 
     def _update(self, slots: np.ndarray, z: np.ndarray) -> tuple[int, int]:
-        """The frame's update (IIE-1): gate each observation at the prior, then iterate
-        (``FilterSettings.iterations``, the iterated EKF: Jacobians and residuals at the last
-        iterate ``exp(d_i) X``, ``d_i+1 = K_i (r_i + H_i d_i)``), ``P <- P - K S K^T`` with the
-        last iterate's gain."""
+        """The frame's update (IIE-1): each observation gated at the prior, the rest in one
+        stacked update, ``P <- P - K S K^T`` by a Cholesky factor of ``S``."""
         s = self.settings
-        zhat, Hp, Hl, depth = self._jacobians(slots)
+        zhat, Hp, Hl, Ha, depth = self._jacobians(slots)
         r = z - zhat
         ok = np.isfinite(r).all(axis=1) & (depth > 1e-6) & (depth <= s.max_depth)
         if self.rows == 4:
@@ -333,9 +385,9 @@ class ImuInvariantEKF:
         n_rej = int((~ok).sum())
         if not ok.any():
             return 0, n_rej
-        slots, z, r, Hp, Hl = slots[ok], z[ok], r[ok], Hp[ok], Hl[ok]
+        slots, r, Hp, Hl, Ha = slots[ok], r[ok], Hp[ok], Hl[ok], Ha[ok]
         m = self.rows
-        PHt, S = self._stacked(slots, Hp, Hl)
+        PHt, S = self._stacked(slots, Hp, Hl, Ha)
         if self.gate is not None:
             k = slots.size
             blocks = S.reshape(k, m, k, m)[np.arange(k), :, np.arange(k), :]  # (k, m, m)
@@ -351,82 +403,70 @@ class ImuInvariantEKF:
                 rows = (np.flatnonzero(keep)[:, None] * m + np.arange(m)).ravel()
                 S = S[np.ix_(rows, rows)]
                 PHt = PHt[:, rows]
-                slots, z, r, Hp, Hl = slots[keep], z[keep], r[keep], Hp[keep], Hl[keep]
-        k = slots.size
-        li = N_CORE + 3 * slots[:, None] + np.arange(3)
-        P = self.P
-        x0, lm0 = self.x, self.lm.copy()
-        delta = np.zeros(P.shape[0])
-        for it in range(max(int(s.iterations), 1)):
-            if it:
-                self.x, self.lm = x0, lm0.copy()
-                self._apply(delta)
-                zhat, Hp, Hl, _ = self._jacobians(slots)
-                r = z - zhat
-                PHt, S = self._stacked(slots, Hp, Hl)
-            L, info = dpotrf(S, lower=1, clean=1)
-            if info != 0:
-                self.x, self.lm = x0, lm0
-                raise UpdateRejected(f"innovation covariance of {k} observations not positive "
-                                     "definite")
-            y = r.ravel()
-            if it:  # r_i + H_i d_i
-                y = y + (np.einsum("kmc,kc->km", Hp, delta[POSE_COLS][None].repeat(k, 0))
-                         + np.einsum("kmc,kc->km", Hl, delta[li])).ravel()
-            Wt = solve_triangular(L, PHt.T, lower=True, check_finite=False)  # L^-1 H P
-            new = Wt.T @ solve_triangular(L, y, lower=True, check_finite=False)
-            if not np.isfinite(new).all():
-                self.x, self.lm = x0, lm0
-                raise UpdateRejected(f"correction of {k} observations not finite")
-            step = np.abs(new - delta).max()
-            delta = new
-            if step < 1e-9:
-                break
+                r = r[keep]
+        k = r.shape[0]
+        L, info = dpotrf(S, lower=1, clean=1)
+        if info != 0:
+            raise UpdateRejected(f"innovation covariance of {k} observations not positive definite")
+        Wt = solve_triangular(L, PHt.T, lower=True, check_finite=False)  # L^-1 H P (km, n)
+        delta = Wt.T @ solve_triangular(L, r.ravel(), lower=True, check_finite=False)
         KSKt = Wt.T @ Wt
-        self.x, self.lm = x0, lm0
-        if not (P.diagonal() - KSKt.diagonal()).min() > 0:
-            raise UpdateRejected(f"gain of {k} observations leaves a variance not positive")
-        self.P = P - KSKt
-        x_prior = self.lm.copy()
+        P = self.P
+        used = np.flatnonzero(P.diagonal() > 0)
+        if not ((P.diagonal() - KSKt.diagonal())[used].min() > 0 and np.isfinite(delta).all()):
+            raise UpdateRejected(f"gain of {k} observations not finite or a variance not positive")
+        P = P - KSKt
+        self.P = 0.5 * (P + P.T)
         self._apply(delta)
-        self._transport(x_prior)
-        self.P = 0.5 * (self.P + self.P.T)
         return k, n_rej
 
-    def _transport(self, x_prior: np.ndarray) -> None:
-        """Keep the four unobservable directions (translation, yaw) of the inverse-depth slots
-        moving with their estimate (IIE-5): ``P <- T P T^T`` with ``T`` adding
-        ``N_j(x+) - N_j(x-)`` (ID-7, restricted to the translation and the rotation about
-        gravity) times the core's ``[xi_p; xi_R]`` to the rows of slot j."""
-        ids = np.flatnonzero(~self.in_group)
-        if ids.size == 0 or not self.settings.transport:
-            return
-        dN = idp.gauge_rows_change(x_prior[ids], self.lm[ids], self.anchor_R[ids],
-                                   self.anchor_p[ids])  # (k, 3, 6) on [v; w]
-        n = self.P.shape[0]
-        Cz = np.zeros((n, N_CORE))
-        rows = (N_CORE + 3 * ids[:, None] + np.arange(3)).ravel()
-        C = np.zeros((ids.size, 3, N_CORE))
-        C[:, :, POS] = dN[:, :, :3]
-        if self.settings.transport == "all":
-            C[:, :, ROT] = dN[:, :, 3:]
-        else:
-            C[:, :, ROT.start + 2] = dN[:, :, 5]  # yaw: the rotation about world z
-        Cz[rows] = C.reshape(-1, N_CORE)
-        P = self.P
-        W = P[:, :N_CORE].copy()
-        V = W + Cz @ W[:N_CORE]
-        self.P = P + W @ Cz.T + Cz @ V.T
-
     def _apply(self, delta: np.ndarray) -> None:
-        """``X <- exp(delta) X`` on the group; additive on the biases and inverse-depth slots."""
+        """``X <- exp(delta) X`` on the group and the anchor clones; additive on the biases and
+        inverse-depth slots."""
         self.x = retract(self.x, delta[:N_CORE])
+        for a in np.flatnonzero(self.anchor_used):
+            d = delta[N_CORE + 6 * a:N_CORE + 6 * a + 6]
+            T = self.anchor_T[a]
+            nav = retract(NavState(T[:3, :3], np.zeros(3), T[:3, 3], np.zeros(3), np.zeros(3)),
+                          np.r_[d[:3], np.zeros(3), d[3:], np.zeros(6)])
+            self.anchor_T[a] = nav.pose
         if self.lm.shape[0]:
-            dl = delta[N_CORE:].reshape(-1, 3)
+            dl = delta[self.L0:].reshape(-1, 3)
             g = self.in_group
             if g.any():
                 self.lm[g] = retract_landmarks(self.lm[g], delta[ROT], dl[g])
             self.lm[~g] += dl[~g]
+
+    def _new_anchor(self, t: int) -> int | None:
+        """The anchor clone of frame ``t`` (the current pose), made if needed: its error is the
+        pose's ``[xi_R, xi_p]`` (rows and columns copied). None when every clone is in use."""
+        hit = np.flatnonzero(self.anchor_used & (self.anchor_frame == t))
+        if hit.size:
+            return int(hit[0])
+        free = np.flatnonzero(~self.anchor_used)
+        if free.size == 0:
+            return None
+        a = int(free[0])
+        rows = N_CORE + 6 * a + np.arange(6)
+        P = self.P
+        P[rows, :] = P[POSE_COLS, :]
+        P[:, rows] = P[:, POSE_COLS]
+        self.anchor_T[a] = self.x.pose
+        self.anchor_used[a] = True
+        self.anchor_frame[a] = t
+        return a
+
+    def _free_anchors(self) -> None:
+        """Clones no inverse-depth slot uses leave the state (rows and columns zeroed)."""
+        held = np.zeros(self.n_anchor, dtype=bool)
+        ids = ~self.in_group
+        held[self.anchor_of[ids]] = True
+        for a in np.flatnonzero(self.anchor_used & ~held):
+            rows = N_CORE + 6 * a + np.arange(6)
+            self.P[rows, :] = 0.0
+            self.P[:, rows] = 0.0
+            self.anchor_used[a] = False
+            self.anchor_frame[a] = -1
 
     def _augment(self, tracks: np.ndarray, z: np.ndarray, t: int) -> tuple[int, int]:
         """New landmarks (IIE-2, IIE-3) for tracks not in the state, while slots are free."""
@@ -446,9 +486,9 @@ class ImuInvariantEKF:
             return 0, n_rej
         T = self.x.pose
         R = T[:3, :3]
-        E = estimate_pose_jacobian(self.x)
         P = self.P
         n = P.shape[0]
+        anchor_of = -np.ones(k, dtype=np.int64)
         if self.rows == 4:
             pc, Jt = triangulate_with_jacobian(z, self.K, self.baseline)
             good = np.isfinite(pc).all(axis=1) & (pc[:, 2] > 0) & (pc[:, 2] <= s.max_depth)
@@ -457,32 +497,29 @@ class ImuInvariantEKF:
             k = tracks.size
             if k == 0:
                 return 0, n_rej
+            anchor_of = anchor_of[:k]
             Ric = self.imu_T_cam[:3, :3]
             lm_new = (pc @ Ric.T + self.imu_T_cam[:3, 3]) @ R.T + T[:3, 3]
             G = (R @ Ric) @ Jt  # (k, 3, 4)
             Cn = self.pixel_var * G @ np.swapaxes(G, 1, 2)
-            J = np.zeros((k, 3, n))
-            J[:, :, POS] = np.eye(3)
+            Jf = np.zeros((3 * k, n))
+            Jf[:, POS] = np.tile(np.eye(3), (k, 1))  # xi_l = xi_p + G dz
+            cross = Jf @ P
             in_group = np.ones(k, dtype=bool)
-            R_a = np.zeros((k, 3, 3))
-            p_a = np.zeros((k, 3))
         else:
+            a = self._new_anchor(t)
+            if a is None:
+                self.counts["n_waiting_for_anchor"] += k
+                return 0, n_rej
             lm_new, Cn = iml.initial_landmarks(z, self.K, None, self.pixel_var, self.prior)
-            world_T_cam = T @ self.imu_T_cam
-            Cx = iml.chart_change_jacobian(lm_new)  # (k, 3, 6)
-            Jcore = Cx @ (self.ad_cam @ E)  # (k, 3, 15)
-            J = np.zeros((k, 3, n))
-            J[:, :, :N_CORE] = Jcore
+            anchor_of[:] = a
+            cross = np.zeros((3 * k, n))  # x is read in its anchor: only the pixels' noise
             in_group = np.zeros(k, dtype=bool)
-            R_a = np.broadcast_to(world_T_cam[:3, :3], (k, 3, 3)).copy()
-            p_a = np.broadcast_to(world_T_cam[:3, 3], (k, 3)).copy()
-        Jf = J.reshape(3 * k, n)
-        cross = Jf @ P  # (3k, n)
         Pn = np.empty((n + 3 * k, n + 3 * k))
         Pn[:n, :n] = P
         Pn[n:, :n] = cross
         Pn[:n, n:] = cross.T
-        Pn[n:, n:] = cross @ Jf.T
+        Pn[n:, n:] = cross[:, POS] @ np.tile(np.eye(3), (1, k)) if self.rows == 4 else 0.0
         for j in range(k):
             Pn[n + 3 * j:n + 3 * j + 3, n + 3 * j:n + 3 * j + 3] += Cn[j]
         self.P = Pn
@@ -490,37 +527,51 @@ class ImuInvariantEKF:
         self.slot_of[tracks] = self.tracks.size + np.arange(k)
         self.tracks = np.concatenate([self.tracks, tracks])
         self.in_group = np.concatenate([self.in_group, in_group])
-        self.anchor_R = np.concatenate([self.anchor_R, R_a])
-        self.anchor_p = np.concatenate([self.anchor_p, p_a])
+        self.anchor_of = np.concatenate([self.anchor_of, anchor_of])
         self.last_seen = np.concatenate([self.last_seen, np.full(k, t)])
         return k, n_rej
 
+    def _point_jacobians(self, slots: np.ndarray):
+        """For inverse-depth ``slots``: world points ``m`` (k, 3), ``dm/dx`` (k, 3, 3) and
+        ``dm/d(anchor clone error)`` (k, 3, 6): ``dm = R_a [I, -q^] xi_a``, ``q = b / rho``."""
+        x = self.lm[slots]
+        R_a, p_a = self._anchor_cams(slots)
+        m = idp.world_point(x, R_a, p_a)
+        J = idp.world_jacobian(x, R_a)
+        q = idp.bearing(x) / x[:, 2:3]
+        A = np.empty((slots.size, 3, 6))
+        A[:, :, :3] = R_a
+        A[:, :, 3:] = -R_a @ hat(q)
+        return m, J, A @ self._anchor_map(slots)
+
     def _join_group(self) -> None:
         """Inverse-depth slots whose linearity index is below the setting join the group
-        (IIE-4)."""
+        (IIE-4): ``xi_l = J dx + A xi_a + l^ xi_R`` (``A`` the anchor's share of the world
+        error)."""
         lin = self.settings.inverse_depth_linearity
         ids = np.flatnonzero(~self.in_group)
         if lin <= 0 or ids.size == 0:
             return
         T = self.x.pose
         centre = T[:3, :3] @ self.imu_T_cam[:3, 3] + T[:3, 3]
-        rho_rows = N_CORE + 3 * ids + 2
-        L = idp.linearity_index(self.lm[ids], self.P[rho_rows, rho_rows], self.anchor_R[ids],
-                                self.anchor_p[ids], centre)
+        rho_rows = self.L0 + 3 * ids + 2
+        R_a, p_a = self._anchor_cams(ids)
+        L = idp.linearity_index(self.lm[ids], self.P[rho_rows, rho_rows], R_a, p_a, centre)
         ids = ids[L < lin]
         if ids.size == 0:
             return
-        x, R_a = self.lm[ids], self.anchor_R[ids]
-        J = idp.world_jacobian(x, R_a)
-        m = idp.world_point(x, R_a, self.anchor_p[ids])
+        m, J, A = self._point_jacobians(ids)
         Lh = hat(m)
-        rows = N_CORE + 3 * ids[:, None] + np.arange(3)
+        rows = self._slot_rows(ids)
+        arows = self._anchor_rows(ids)
         P = self.P
-        P[rows] = J @ P[rows] + Lh @ P[ROT]
+        P[rows] = J @ P[rows] + A @ P[arows] + Lh @ P[ROT]
         P[:, rows] = (np.einsum("nkj,kij->nki", P[:, rows], J)
+                      + np.einsum("nkj,kij->nki", P[:, arows], A)
                       + np.einsum("nj,kij->nki", P[:, ROT], Lh))
         self.lm[ids] = m
         self.in_group[ids] = True
+        self.anchor_of[ids] = -1
         self.counts["n_joined_group"] += int(ids.size)
 
     def _world(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -530,7 +581,7 @@ class ImuInvariantEKF:
         cov = np.empty((k, 3, 3))
         if k == 0:
             return mean, cov
-        rows = N_CORE + 3 * slots[:, None] + np.arange(3)
+        rows = self._slot_rows(slots)
         g = self.in_group[slots]
         if g.any():
             s, rr = slots[g], rows[g]
@@ -544,9 +595,12 @@ class ImuInvariantEKF:
         i = ~g
         if i.any():
             s, rr = slots[i], rows[i]
-            J = idp.world_jacobian(self.lm[s], self.anchor_R[s])
-            mean[i] = idp.world_point(self.lm[s], self.anchor_R[s], self.anchor_p[s])
-            cov[i] = J @ self.P[rr[:, :, None], rr[:, None, :]] @ np.swapaxes(J, 1, 2)
+            m, J, A = self._point_jacobians(s)
+            idx = np.concatenate([rr, self._anchor_rows(s)], axis=1)  # (k, 9)
+            sub = self.P[idx[:, :, None], idx[:, None, :]]
+            G = np.concatenate([J, A], axis=2)
+            mean[i] = m
+            cov[i] = G @ sub @ np.swapaxes(G, 1, 2)
         return mean, cov
 
     def _drop(self, gone: np.ndarray) -> None:
@@ -559,12 +613,11 @@ class ImuInvariantEKF:
         mean, cov = self._world(out)
         self.map_mean[tr], self.map_cov[tr] = mean, cov
         self.slot_of[tr] = -1
-        idx = np.concatenate([np.arange(N_CORE), (N_CORE + 3 * keep[:, None] + np.arange(3)).ravel()])
+        idx = np.concatenate([np.arange(self.L0), self._slot_rows(keep).ravel()])
         self.P = self.P[np.ix_(idx, idx)]
         self.lm = self.lm[keep]
         self.tracks = self.tracks[keep]
         self.in_group = self.in_group[keep]
-        self.anchor_R = self.anchor_R[keep]
-        self.anchor_p = self.anchor_p[keep]
+        self.anchor_of = self.anchor_of[keep]
         self.last_seen = self.last_seen[keep]
         self.slot_of[self.tracks] = np.arange(keep.size)

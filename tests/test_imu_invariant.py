@@ -17,7 +17,7 @@ from vislam.ekf import imu_landmarks as iml
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.driver import run_filter
-from vislam.ekf.geometry import se3_inv, se3_log, so3_exp
+from vislam.ekf.geometry import adjoint, se3_inv, se3_log, so3_exp
 from vislam.ekf.imu_invariant import POSE_COLS, FilterSettings, ImuInvariantEKF
 from vislam.ekf.imu_invariant_propagation import N_CORE, ROT, retract, retract_landmarks
 from vislam.ekf.strapdown import NavState
@@ -29,8 +29,8 @@ K = np.array([[450.0, 0, 370], [0, 460, 250], [0, 0, 1]])
 
 
 def _setup(baseline, rng=None):
-    """A filter with one group landmark and one inverse-depth landmark (anchored in an older
-    camera), without running a drive."""
+    """A filter with one group landmark and one inverse-depth landmark anchored in an older
+    pose (an anchor clone), without running a drive."""
     rng = rng or np.random.default_rng(0)
     x0 = NavState(so3_exp(rng.normal(size=3)), rng.normal(size=3), rng.normal(size=3),
                   np.zeros(3), np.zeros(3))
@@ -40,88 +40,106 @@ def _setup(baseline, rng=None):
     f = ImuInvariantEKF()
     f.x = x0
     f.cam_T_imu, f.imu_T_cam = cam_T_imu, se3_inv(cam_T_imu)
+    f.ad_cam = adjoint(cam_T_imu)
     f.camera = iml.PixelModel(K, cam_T_imu, baseline)
     f.rows = f.camera.rows
+    f.n_anchor, f.L0 = 1, N_CORE + 6
     wTc = x0.pose @ f.imu_T_cam
-    anchor = wTc.copy()
-    anchor[:3, 3] += [0.2, -0.1, 0.05]
-    anchor[:3, :3] = anchor[:3, :3] @ so3_exp([0.02, -0.03, 0.01])
+    anchor_imu = x0.pose.copy()
+    anchor_imu[:3, 3] += [0.2, -0.1, 0.05]
+    anchor_imu[:3, :3] = anchor_imu[:3, :3] @ so3_exp([0.02, -0.03, 0.01])
+    anchor = anchor_imu @ f.imu_T_cam
+    f.anchor_T = anchor_imu[None].copy()
+    f.anchor_used = np.array([True])
     p_group = (wTc @ np.r_[0.3, -0.2, 3.0, 1.0])[:3]
     p_id = (wTc @ np.r_[-0.1, 0.2, 5.0, 1.0])[:3]
     f.lm = np.array([p_group, idp.from_world(p_id[None], anchor[None, :3, :3],
                                              anchor[None, :3, 3])[0]])
     f.in_group = np.array([True, False])
-    f.anchor_R = np.stack([np.eye(3), anchor[:3, :3]])
-    f.anchor_p = np.stack([np.zeros(3), anchor[:3, 3]])
+    f.anchor_of = np.array([-1, 0])
     return f
+
+
+def _moved(f, baseline, d):
+    """``f``'s state moved by the error ``d`` (core, anchor clone, two landmarks)."""
+    g = _setup(baseline)
+    g.x = retract(f.x, d[:N_CORE])
+    a = d[N_CORE:N_CORE + 6]
+    T = f.anchor_T[0]
+    nav = retract(NavState(T[:3, :3], np.zeros(3), T[:3, 3], np.zeros(3), np.zeros(3)),
+                  np.r_[a[:3], np.zeros(3), a[3:], np.zeros(6)])
+    g.anchor_T = nav.pose[None]
+    g.lm[0] = retract_landmarks(f.lm[:1], d[ROT], d[None, 21:24])[0]
+    g.lm[1] = f.lm[1] + d[24:27]
+    return g
 
 
 @pytest.mark.parametrize("baseline", [None, 0.11])
 def test_measurement_jacobians_against_finite_differences(baseline):
     """IIE-1: H of a group landmark (B [0, -I, I]) and of an inverse-depth one (IL-2 chained
-    through RI-6) against finite differences of the predicted pixels of the retracted state;
-    no column but xi_R, xi_p and the landmark's own."""
+    through RI-6, with its anchor clone's columns) against finite differences of the predicted
+    pixels of the moved state; no other column."""
     f = _setup(baseline)
     slots = np.array([0, 1])
-    _, Hp, Hl, _ = f._jacobians(slots)
-
-    def pixels(d):
-        g = _setup(baseline)
-        g.x = retract(f.x, d[:N_CORE])
-        g.lm[0] = retract_landmarks(f.lm[:1], d[ROT], d[None, 15:18])[0]
-        g.lm[1] = f.lm[1] + d[18:21]
-        return g._jacobians(slots)[0]
-
-    num = numeric_jacobian(pixels, np.zeros(N_CORE + 6))
+    _, Hp, Hl, Ha, _ = f._jacobians(slots)
+    num = numeric_jacobian(lambda d: _moved(f, baseline, d)._jacobians(slots)[0],
+                           np.zeros(N_CORE + 12))
     np.testing.assert_allclose(num[:, :, POSE_COLS], Hp, rtol=1e-6, atol=1e-5)
     assert np.abs(np.delete(num[:, :, :N_CORE], POSE_COLS, axis=2)).max() == 0
-    np.testing.assert_allclose(num[0, :, 15:18], Hl[0], rtol=1e-6, atol=1e-5)
-    np.testing.assert_allclose(num[1, :, 18:21], Hl[1], rtol=1e-6, atol=1e-5)
-    assert np.abs(num[0, :, 18:]).max() == 0 and np.abs(num[1, :, 15:18]).max() == 0
+    np.testing.assert_allclose(num[1, :, N_CORE:N_CORE + 6], Ha[1], rtol=1e-6, atol=1e-5)
+    assert np.abs(num[0, :, N_CORE:N_CORE + 6]).max() == 0 and np.abs(Ha[0]).max() == 0
+    np.testing.assert_allclose(num[0, :, 21:24], Hl[0], rtol=1e-6, atol=1e-5)
+    np.testing.assert_allclose(num[1, :, 24:27], Hl[1], rtol=1e-6, atol=1e-5)
+    assert np.abs(num[0, :, 24:]).max() == 0 and np.abs(num[1, :, 21:24]).max() == 0
 
 
-def test_new_inverse_depth_landmark_jacobian_and_gauge():
-    """IIE-2: a new landmark's chart error is dx = C Ad(cam_T_imu) E xi (the anchor is the
-    estimated camera), against finite differences of the landmark read in the estimated and
-    the true camera; and it moves with a change of world exactly as ID-7 says."""
+def test_world_point_jacobians_against_finite_differences():
+    """IIE-4's Jacobians of an inverse-depth landmark's world point: in its chart coordinates
+    and in its anchor clone's error."""
     f = _setup(None)
-    x0 = f.x
-    wTc = x0.pose @ f.imu_T_cam
-    m = (wTc @ np.r_[0.3, -0.2, 3.0, 1.0])[:3]
+    m, J, A = f._point_jacobians(np.array([1]))
+    num = numeric_jacobian(lambda d: _moved(f, None, d)._point_jacobians(np.array([1]))[0][0],
+                           np.zeros(N_CORE + 12))
+    np.testing.assert_allclose(num[:, N_CORE:N_CORE + 6], A[0], atol=1e-7)
+    np.testing.assert_allclose(num[:, 24:27], J[0], atol=1e-6)
 
-    def chart(xi):
-        wTc_true = retract(x0, xi).pose @ f.imu_T_cam
-        x_meas = idp.from_world(m[None], wTc_true[None, :3, :3], wTc_true[None, :3, 3])[0]
-        x_state = idp.from_world(m[None], wTc[None, :3, :3], wTc[None, :3, 3])[0]
-        return x_state - x_meas
 
-    from vislam.ekf.geometry import adjoint
-    from vislam.ekf.imu_invariant_propagation import estimate_pose_jacobian
-    x = idp.from_world(m[None], wTc[None, :3, :3], wTc[None, :3, 3])
-    J = iml.chart_change_jacobian(x)[0] @ adjoint(f.cam_T_imu) @ estimate_pose_jacobian(x0)
-    np.testing.assert_allclose(J, numeric_jacobian(chart, np.zeros(N_CORE)), atol=1e-8)
-    N = np.zeros((N_CORE, 6))  # a change of world [v; w] in the invariant error
-    N[6:9, :3] = np.eye(3)
-    N[0:3, 3:] = np.eye(3)
-    np.testing.assert_allclose(J @ N, idp.gauge_rows(x, wTc[None, :3, :3], wTc[None, :3, 3])[0],
-                               atol=1e-12)
+def test_anchor_clone_and_new_landmark():
+    """IIE-2: a monocular track's first observation opens an anchor clone (the pose's rows and
+    columns copied) and a landmark read in it with only the pixels' and the prior's
+    covariance; the clone is freed once no landmark uses it."""
+    drive, _ = simulate_imu(ImuSimConfig(camera="mono", n_frames=21, n_landmarks=50))
+    f = ImuInvariantEKF()
+    f.initialise(drive, FilterConfig())
+    tracks, z = drive.obs.frame(0)
+    f._augment(tracks[:3], z[:3], 0)
+    a = N_CORE + np.arange(6)
+    np.testing.assert_array_equal(f.P[a][:, a], f.P[POSE_COLS][:, POSE_COLS])
+    np.testing.assert_array_equal(f.P[a, :N_CORE], f.P[POSE_COLS, :N_CORE])
+    rows = f.L0 + np.arange(9)
+    assert np.all(f.P[rows, :f.L0] == 0)
+    assert f.anchor_used[0] and np.all(f.anchor_of == 0)
+    f._drop(np.ones(3, dtype=bool))
+    f._free_anchors()
+    assert not f.anchor_used.any() and np.all(f.P[a] == 0)
 
 
 def test_joining_the_group_keeps_the_world_covariance():
     """IIE-4: an inverse-depth slot joining the group keeps its world mean and covariance and
-    its world-frame cross-covariance with the pose (xi_l = J dx + l^ xi_R)."""
+    its world-frame cross-covariance with the pose (xi_l = J dx + A xi_a + l^ xi_R)."""
     rng = np.random.default_rng(3)
     f = _setup(None, rng)
-    n = N_CORE + 6
+    n = N_CORE + 12
     A = rng.normal(size=(n, n))
     f.P = 1e-3 * A @ A.T
     f.settings = FilterSettings(inverse_depth_linearity=1e9)
     f.counts = {"n_joined_group": 0}
     slots = np.arange(2)
     mean0, cov0 = f._world(slots)
-    rows = N_CORE + 3 + np.arange(3)
-    J = idp.world_jacobian(f.lm[1:], f.anchor_R[1:])[0]
-    cross0 = J @ f.P[rows][:, ROT]  # world error of the point vs xi_R
+    m, J, Aa = f._point_jacobians(np.array([1]))
+    rows = f.L0 + 3 + np.arange(3)
+    arows = N_CORE + np.arange(6)
+    cross0 = J[0] @ f.P[rows][:, ROT] + Aa[0] @ f.P[arows][:, ROT]  # world error vs xi_R
     f._join_group()
     assert f.in_group.all() and f.counts["n_joined_group"] == 1
     mean1, cov1 = f._world(slots)
