@@ -110,6 +110,8 @@ class FilterSettings:
     max_depth: float = 200.0
     max_anchors: int = 10
     inverse_depth_prior: tuple[float, float] | None = None
+    learn_prior: int = 10
+    stereo_start: str = "inverse-depth"
     rest: RestConfig = RestConfig()
 
     def __post_init__(self) -> None:
@@ -120,6 +122,9 @@ class FilterSettings:
         if self.gate_probability is not None and not 0 < self.gate_probability < 1:
             raise InputError(f"{ESTIMATOR_NAME}: gate_probability must be in (0, 1), got "
                              f"{self.gate_probability!r}")
+        if self.stereo_start not in ("inverse-depth", "group"):
+            raise InputError(f"{ESTIMATOR_NAME}: stereo_start must be 'inverse-depth' or "
+                             f"'group', got {self.stereo_start!r}")
         if self.max_landmarks < 0 or self.max_unseen < 0 or self.max_anchors < 1:
             raise InputError(f"{ESTIMATOR_NAME}: max_landmarks and max_unseen must be >= 0, "
                              "max_anchors >= 1")
@@ -171,6 +176,7 @@ class ImuInvariantEKF:
         self.pixel_var = s.pixel_sigma ** 2
         self.prior = (iml.DepthPrior(s.min_depth) if s.inverse_depth_prior is None
                       else _Prior(*s.inverse_depth_prior))
+        self.joined_rho: list[float] = []
         self.gate = None if s.gate_probability is None else chi2.ppf(s.gate_probability, self.rows)
         initial = self.initial
         if initial is None:
@@ -475,8 +481,9 @@ class ImuInvariantEKF:
         if tracks.size == 0 or room <= 0:
             return 0, 0
         n_rej = 0
+        group_start = self.rows == 4 and s.stereo_start == "group"
         if self.rows == 4:
-            ok = z[:, 0] - z[:, 2] >= s.min_disparity
+            ok = z[:, 0] - z[:, 2] >= (s.min_disparity if group_start else 1e-3)
             n_rej = int((~ok).sum())
             tracks, z = tracks[ok], z[ok]
         if tracks.size > room:
@@ -489,7 +496,7 @@ class ImuInvariantEKF:
         P = self.P
         n = P.shape[0]
         anchor_of = -np.ones(k, dtype=np.int64)
-        if self.rows == 4:
+        if group_start:
             pc, Jt = triangulate_with_jacobian(z, self.K, self.baseline)
             good = np.isfinite(pc).all(axis=1) & (pc[:, 2] > 0) & (pc[:, 2] <= s.max_depth)
             n_rej += int((~good).sum())
@@ -511,7 +518,8 @@ class ImuInvariantEKF:
             if a is None:
                 self.counts["n_waiting_for_anchor"] += k
                 return 0, n_rej
-            lm_new, Cn = iml.initial_landmarks(z, self.K, None, self.pixel_var, self.prior)
+            lm_new, Cn = iml.initial_landmarks(z, self.K, self.baseline, self.pixel_var,
+                                               self._prior())
             anchor_of[:] = a
             cross = np.zeros((3 * k, n))  # x is read in its anchor: only the pixels' noise
             in_group = np.zeros(k, dtype=bool)
@@ -519,7 +527,7 @@ class ImuInvariantEKF:
         Pn[:n, :n] = P
         Pn[n:, :n] = cross
         Pn[:n, n:] = cross.T
-        Pn[n:, n:] = cross[:, POS] @ np.tile(np.eye(3), (1, k)) if self.rows == 4 else 0.0
+        Pn[n:, n:] = cross[:, POS] @ np.tile(np.eye(3), (1, k)) if group_start else 0.0
         for j in range(k):
             Pn[n + 3 * j:n + 3 * j + 3, n + 3 * j:n + 3 * j + 3] += Cn[j]
         self.P = Pn
@@ -530,6 +538,17 @@ class ImuInvariantEKF:
         self.anchor_of = np.concatenate([self.anchor_of, anchor_of])
         self.last_seen = np.concatenate([self.last_seen, np.full(k, t)])
         return k, n_rej
+
+    def _prior(self):
+        """The inverse-depth prior of a new monocular landmark (IIE-2): the depth prior of the
+        settings until ``learn_prior`` landmarks have joined the group, then the mean and spread
+        of those landmarks' inverse depths in their anchors (an empirical prior: the scene's own
+        depths, the same rule on every drive)."""
+        n = self.settings.learn_prior
+        if n <= 0 or len(self.joined_rho) < n:
+            return self.prior
+        r = np.asarray(self.joined_rho)
+        return _Prior(float(r.mean()), float(max(r.std(), 0.25 * r.mean())))
 
     def _point_jacobians(self, slots: np.ndarray):
         """For inverse-depth ``slots``: world points ``m`` (k, 3), ``dm/dx`` (k, 3, 3) and
@@ -560,6 +579,7 @@ class ImuInvariantEKF:
         ids = ids[L < lin]
         if ids.size == 0:
             return
+        self.joined_rho.extend(self.lm[ids, 2].tolist())
         m, J, A = self._point_jacobians(ids)
         Lh = hat(m)
         rows = self._slot_rows(ids)

@@ -57,6 +57,7 @@ def _setup(baseline, rng=None):
                                              anchor[None, :3, 3])[0]])
     f.in_group = np.array([True, False])
     f.anchor_of = np.array([-1, 0])
+    f.joined_rho = []
     return f
 
 
