@@ -20,7 +20,6 @@ import argparse
 import time
 
 import numpy as np
-
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.driver import run_filter
 from vislam.ekf.geometry import se3_inv, se3_log

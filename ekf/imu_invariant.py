@@ -60,23 +60,35 @@ its covariance moved into the invariant error by RI-6's ``S``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.linalg.lapack import dpotrf
 from scipy.stats import chi2
-
 from vislam.ekf import imu_landmarks as iml
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.camera import triangulate_with_jacobian
 from vislam.ekf.errors import InputError
 from vislam.ekf.filter import FrameObservations, Landmarks, MotionInput, UpdateCounts
 from vislam.ekf.geometry import adjoint, hat
-from vislam.ekf.imu_init import InitialState, RestConfig, detect_rest, rest_initial_state
+from vislam.ekf.imu_init import (
+    InitialState,
+    RestConfig,
+    detect_rest,
+    rest_initial_state,
+)
 from vislam.ekf.imu_invariant_propagation import (
-    N_CORE, POS, ROT, estimate_pose_jacobian, frame_covariance, propagate, retract,
-    retract_landmarks, strapdown_to_invariant)
+    N_CORE,
+    POS,
+    ROT,
+    estimate_pose_jacobian,
+    frame_covariance,
+    propagate,
+    retract,
+    retract_landmarks,
+    strapdown_to_invariant,
+)
 from vislam.ekf.inertial import InertialDrive
 from vislam.ekf.numerics import UpdateRejected
 from vislam.ekf.strapdown import NavState
@@ -112,7 +124,7 @@ class FilterSettings:
     inverse_depth_prior: tuple[float, float] | None = None
     learn_prior: int = 10
     stereo_start: str = "inverse-depth"
-    rest: RestConfig = RestConfig()
+    rest: RestConfig = field(default_factory=RestConfig)
 
     def __post_init__(self) -> None:
         for key in ("pixel_sigma", "min_depth", "max_depth"):

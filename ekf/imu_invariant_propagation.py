@@ -81,19 +81,41 @@ exact to first order and checked both ways in the tests.
 from __future__ import annotations
 
 import numpy as np
-
 from vislam.ekf.errors import EstimationError
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.geometry import hat, so3_left_jacobian_inv, so3_log
 from vislam.ekf.inertial import ImuNoise
 from vislam.ekf.prediction import so3_exp_and_left_jacobian
-from vislam.ekf.strapdown import BA, BG, N_ERROR, POS, ROT, VEL, NavState, exp_and_right_jacobian, step
+from vislam.ekf.strapdown import (
+    BA,
+    BG,
+    N_ERROR,
+    POS,
+    ROT,
+    VEL,
+    NavState,
+    exp_and_right_jacobian,
+    step,
+)
 
 #: The core error state's size and blocks (RI-1), in :mod:`ekf.strapdown`'s order.
 N_CORE = N_ERROR
-__all__ = ["N_CORE", "ROT", "VEL", "POS", "BG", "BA", "retract", "error_between",
-           "sample_transition", "sample_noise", "propagate", "frame_covariance",
-           "strapdown_to_invariant", "estimate_pose_jacobian"]
+__all__ = [
+    "BA",
+    "BG",
+    "N_CORE",
+    "POS",
+    "ROT",
+    "VEL",
+    "error_between",
+    "estimate_pose_jacobian",
+    "frame_covariance",
+    "propagate",
+    "retract",
+    "sample_noise",
+    "sample_transition",
+    "strapdown_to_invariant",
+]
 
 _I3 = np.eye(3)
 

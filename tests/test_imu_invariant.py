@@ -11,8 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from tests.numdiff import numeric_jacobian
 from vislam.ekf import imu_landmarks as iml
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.config import FilterConfig
@@ -24,6 +22,8 @@ from vislam.ekf.strapdown import NavState
 from vislam.eval.imu_sim import simulate_imu
 from vislam.eval.imu_sim_config import ImuSimConfig
 from vislam.graph.inertial_init import in_estimate_gauge
+
+from tests.numdiff import numeric_jacobian
 
 K = np.array([[450.0, 0, 370], [0, 460, 250], [0, 0, 1]])
 
@@ -98,7 +98,7 @@ def test_world_point_jacobians_against_finite_differences():
     """IIE-4's Jacobians of an inverse-depth landmark's world point: in its chart coordinates
     and in its anchor clone's error."""
     f = _setup(None)
-    m, J, A = f._point_jacobians(np.array([1]))
+    _m, J, A = f._point_jacobians(np.array([1]))
     num = numeric_jacobian(lambda d: _moved(f, None, d)._point_jacobians(np.array([1]))[0][0],
                            np.zeros(N_CORE + 12))
     np.testing.assert_allclose(num[:, N_CORE:N_CORE + 6], A[0], atol=1e-7)
@@ -137,7 +137,7 @@ def test_joining_the_group_keeps_the_world_covariance():
     f.counts = {"n_joined_group": 0}
     slots = np.arange(2)
     mean0, cov0 = f._world(slots)
-    m, J, Aa = f._point_jacobians(np.array([1]))
+    _m, J, Aa = f._point_jacobians(np.array([1]))
     rows = f.L0 + 3 + np.arange(3)
     arows = N_CORE + np.arange(6)
     cross0 = J[0] @ f.P[rows][:, ROT] + Aa[0] @ f.P[arows][:, ROT]  # world error vs xi_R

@@ -6,16 +6,30 @@ integration as an independent check of the mean."""
 import numpy as np
 import pytest
 from scipy.stats import chi2
-
-from tests.numdiff import numeric_jacobian
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.geometry import se3_exp, se3_inv, se3_log, so3_exp
 from vislam.ekf.imu_invariant_propagation import (
-    BA, BG, N_CORE, POS, ROT, VEL, error_between, estimate_pose_jacobian, frame_covariance,
-    landmark_errors, propagate, retract, retract_landmarks, sample_noise, sample_transition,
-    strapdown_to_invariant)
+    BA,
+    BG,
+    N_CORE,
+    POS,
+    ROT,
+    VEL,
+    error_between,
+    estimate_pose_jacobian,
+    frame_covariance,
+    landmark_errors,
+    propagate,
+    retract,
+    retract_landmarks,
+    sample_noise,
+    sample_transition,
+    strapdown_to_invariant,
+)
 from vislam.ekf.inertial import ImuNoise
 from vislam.ekf.strapdown import NavState, exp_and_right_jacobian, step
+
+from tests.numdiff import numeric_jacobian
 
 G_WORLD = np.array([0.0, 0.0, -9.81])
 
