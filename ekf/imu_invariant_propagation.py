@@ -120,6 +120,13 @@ __all__ = [
 _I3 = np.eye(3)
 
 
+def _hat3(v: np.ndarray) -> np.ndarray:
+    """The cross-product matrix of one 3-vector (the hot loop's; :func:`ekf.geometry.hat`
+    takes stacks)."""
+    x, y, z = float(v[0]), float(v[1]), float(v[2])
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
 def retract(state: NavState, xi: np.ndarray) -> NavState:
     """``exp(xi) X`` on the core (RI-1): ``xi`` (15,)."""
     xi = np.asarray(xi, dtype=float)
@@ -159,36 +166,39 @@ def sample_transition(after: NavState, R_before: np.ndarray, Jr: np.ndarray, dt:
     if out is not None:
         F[...] = 0.0
         np.fill_diagonal(F, 1.0)
-    G = hat(g_world)
+    G = _hat3(g_world)
     RJ = after.R @ Jr * dt
     F[ROT, BG] = -RJ
     F[VEL, ROT] = G * dt
-    F[VEL, BG] = -hat(after.v) @ RJ
+    F[VEL, BG] = -_hat3(after.v) @ RJ
     F[VEL, BA] = -R_before * dt
     F[POS, ROT] = G * (0.5 * dt * dt)
     F[POS, VEL] = _I3 * dt
-    F[POS, BG] = -hat(after.p) @ RJ
+    F[POS, BG] = -_hat3(after.p) @ RJ
     F[POS, BA] = -R_before * (0.5 * dt * dt)
     return F
 
 
 def sample_noise(after: NavState, Jr: np.ndarray, dt: float, noise: ImuNoise) -> np.ndarray:
-    """``Q`` (15, 15) of one sample (RI-4) on the core."""
+    """``Q`` (15, 15) of one sample (RI-4) on the core: ``Ad_{X'} Cov(eps) Ad_{X'}^T`` written
+    out by blocks (``A_v = v'^``, ``A_p = p'^``; ``R' Cov R'^T`` is ``sa^2 ... I`` for the
+    accelerometer's isotropic blocks)."""
     sg2, sa2 = noise.gyro_noise_density ** 2, noise.accel_noise_density ** 2
-    R = after.R
-    Ad = np.zeros((9, 9))
-    Ad[0:3, 0:3] = R
-    Ad[3:6, 0:3] = hat(after.v) @ R
-    Ad[3:6, 3:6] = R
-    Ad[6:9, 0:3] = hat(after.p) @ R
-    Ad[6:9, 6:9] = R
-    C = np.zeros((9, 9))
-    C[0:3, 0:3] = sg2 * dt * (Jr @ Jr.T)
-    C[3:6, 3:6] = sa2 * dt * _I3
-    C[3:6, 6:9] = C[6:9, 3:6] = 0.5 * sa2 * dt * dt * _I3
-    C[6:9, 6:9] = 0.25 * sa2 * dt ** 3 * _I3
+    RJ = after.R @ Jr
+    Qr = sg2 * dt * (RJ @ RJ.T)  # Q_RR
+    Av, Ap = _hat3(after.v), _hat3(after.p)
+    AvQ, ApQ = Av @ Qr, Ap @ Qr
+    a1, a2, a3 = sa2 * dt, 0.5 * sa2 * dt * dt, 0.25 * sa2 * dt ** 3
     Q = np.zeros((N_CORE, N_CORE))
-    Q[:9, :9] = Ad @ C @ Ad.T
+    Q[ROT, ROT] = Qr
+    Q[VEL, ROT] = AvQ
+    Q[ROT, VEL] = AvQ.T
+    Q[POS, ROT] = ApQ
+    Q[ROT, POS] = ApQ.T
+    Q[VEL, VEL] = AvQ @ Av.T + a1 * _I3
+    Q[POS, VEL] = ApQ @ Av.T + a2 * _I3
+    Q[VEL, POS] = Q[POS, VEL].T
+    Q[POS, POS] = ApQ @ Ap.T + a3 * _I3
     Q[BG, BG] = noise.gyro_random_walk ** 2 * dt * _I3
     Q[BA, BA] = noise.accel_random_walk ** 2 * dt * _I3
     return Q
