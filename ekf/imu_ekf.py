@@ -68,7 +68,7 @@ from vislam.ekf.errors import InputError
 from vislam.ekf.filter import FrameObservations, Landmarks, MotionInput, UpdateCounts
 from vislam.ekf.imu_init import RestConfig, detect_rest, rest_initial_state
 from vislam.ekf.imu_propagation import propagate
-from vislam.ekf.inertial import ImuNoise
+from vislam.ekf.inertial import ImuNoise, InertialDrive
 from vislam.ekf.inertial_dead_reckoning import WORLD_GRAVITY_DIRECTION
 from vislam.ekf.strapdown import N_ERROR, POS, ROT, VEL
 
@@ -104,6 +104,9 @@ class ImuEkf:
 
     # --- the protocol -------------------------------------------------------------------------
     def initialise(self, drive, config, guard) -> None:
+        if not isinstance(drive, InertialDrive):
+            raise InputError(f"ekf-imu runs on raw-IMU drives (IMU samples and camera tracks); "
+                             f"{getattr(drive, 'name', 'this drive')!r} is a velocity drive")
         calib = drive.calibration
         self.guard = guard
         self.g_world = calib.gravity * WORLD_GRAVITY_DIRECTION
