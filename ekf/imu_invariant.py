@@ -89,7 +89,7 @@ from vislam.ekf.imu_invariant_propagation import (
     retract_landmarks,
     strapdown_to_invariant,
 )
-from vislam.ekf.inertial import InertialDrive
+from vislam.ekf.inertial import ImuNoise, InertialDrive
 from vislam.ekf.numerics import UpdateRejected
 from vislam.ekf.strapdown import NavState
 
@@ -154,15 +154,18 @@ class ImuInvariantEKF:
     """The right-invariant raw-IMU EKF (module docstring) in the per-frame protocol of
     :mod:`ekf.filter`: ``initialise`` takes the :class:`ekf.inertial.InertialDrive`; each
     ``predict`` integrates ``motion.imu``; ``update`` takes monocular (n, 2) or stereo (n, 4)
-    pixels."""
+    pixels. ``initial``: the state at frame 0 (default: from the rest there); ``noise``: the IMU
+    noise to assume (default: the drive's calibration; the rest's initial covariance keeps the
+    drive's)."""
 
     name = ESTIMATOR_NAME
     drive_kind = "raw-imu"
 
     def __init__(self, settings: FilterSettings = FilterSettings(),
-                 initial: InitialState | None = None):
+                 initial: InitialState | None = None, noise: ImuNoise | None = None):
         self.settings = settings
         self.initial = initial
+        self.noise_override = noise
 
     # ------------------------------------------------------------------ protocol
     def initialise(self, drive: InertialDrive, config=None, guard=None) -> None:
@@ -178,7 +181,7 @@ class ImuInvariantEKF:
         self.guard = guard
         self.times = np.asarray(drive.timestamps, dtype=float)
         self.g_world = cal.gravity * _DOWN
-        self.noise = cal.noise
+        self.noise = self.noise_override or cal.noise
         self.cam_T_imu = np.asarray(cal.cam_T_imu, dtype=float)
         self.imu_T_cam = cal.imu_T_cam
         self.ad_cam = adjoint(self.cam_T_imu)
