@@ -144,6 +144,7 @@ class FilterSettings:
     max_anchors: int = 10
     inverse_depth_prior: tuple[float, float] | None = None
     learn_prior: int = 10
+    prior_spread: float = 1.0
     stereo_start: str = "inverse-depth"
     rest: RestConfig = field(default_factory=RestConfig)
 
@@ -584,7 +585,8 @@ class ImuInvariantEKF:
         if n <= 0 or len(self.joined_rho) < n:
             return self.prior
         r = np.asarray(self.joined_rho)
-        return _Prior(float(r.mean()), float(max(r.std(), 0.25 * r.mean())))
+        spread = self.settings.prior_spread * r.std()
+        return _Prior(float(r.mean()), float(max(spread, 0.25 * r.mean())))
 
     def _point_jacobians(self, slots: np.ndarray):
         """For inverse-depth ``slots``: world points ``m`` (k, 3), ``dm/dx`` (k, 3, 3) and
