@@ -90,7 +90,7 @@ from scipy.stats import chi2
 from vislam.ekf import imu_landmarks as iml
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.camera import triangulate_with_jacobian
-from vislam.ekf.errors import InputError
+from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.filter import FrameObservations, Landmarks, MotionInput, UpdateCounts
 from vislam.ekf.geometry import adjoint, hat
 from vislam.ekf.imu_init import (
@@ -328,14 +328,10 @@ class ImuInvariantEKF:
         }
 
     # ------------------------------------------------------------------ internals
-    def _error(self, t: int, what: str):
-        from vislam.ekf.errors import EstimationError
+    def _error(self, t: int, what: str) -> EstimationError:
         if self.guard is not None:
             return self.guard.error(t, what)
         return EstimationError(f"{ESTIMATOR_NAME}: frame {t}: {what}")
-
-    def state_nav(self) -> NavState:
-        return self.x
 
     def _anchor_cams(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``world_T_cam`` of the anchors of inverse-depth ``slots``: ``(R_a (k, 3, 3), p_a (k, 3))``."""

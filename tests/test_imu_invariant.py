@@ -200,3 +200,26 @@ def test_half_the_accelerometer_noise_and_walk_shows():
         nees.append(np.einsum("ni,ni->n", xi,
                               np.linalg.solve(est.pose_cov, xi[:, :, None])[:, :, 0])[1:].mean())
     assert nees[1] > 1.3 * nees[0], nees
+
+
+def test_stereo_tracks_started_in_the_group():
+    """``stereo_start="group"``: stereo tracks triangulated straight into the group
+    (xi_l = xi_p + R R_ic dp_c), no anchor clone used; centimetre accuracy on the room drive."""
+    drive, truth = simulate_imu(ImuSimConfig(camera="stereo", seed=1, n_frames=121))
+    f = ImuInvariantEKF(FilterSettings(stereo_start="group"))
+    est = run_filter(f, drive, FilterConfig())
+    assert est.info["n_joined_group"] == 0 and not f.anchor_used.any()
+    gt = in_estimate_gauge(truth.frame_poses, est.poses[0][None])
+    assert np.linalg.norm(est.poses[:, :3, 3] - gt[:, :3, 3], axis=1).max() < 0.03
+
+
+def test_bad_settings_and_input_are_named():
+    from vislam.ekf.errors import EstimationError, InputError
+    with pytest.raises(InputError, match="stereo_start"):
+        FilterSettings(stereo_start="sideways")
+    with pytest.raises(InputError, match="pixel_sigma"):
+        FilterSettings(pixel_sigma=0.0)
+    moving, _ = simulate_imu(ImuSimConfig(camera="mono", n_frames=41, rest_s=0.0,
+                                          n_landmarks=20))
+    with pytest.raises(EstimationError, match="cannot be initialised from a rest"):
+        run_filter(ImuInvariantEKF(), moving, FilterConfig())
