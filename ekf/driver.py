@@ -17,6 +17,16 @@ track's observations after it become a new track index (:func:`carry_tracks`), a
 would be inconsistent). The new indices follow the sequence's, ``track_origin`` names the
 source column of each (as track cleaning's splits do), and ``info["n_carry_splits"]`` counts
 them. The KITTI drives' tracks never come back, except across a rejected observation or two.
+
+**Raw-IMU drives** (:class:`ekf.inertial.InertialDrive`). The same loop drives a filter over a
+raw-IMU drive (:func:`run_filter` takes either kind): ``initialise`` is given the InertialDrive
+(its calibration, IMU stream and tracks), each interval's :class:`~ekf.filter.MotionInput`
+carries the IMU samples of ``(t_k-1, t_k]`` (``imu``; ``start``, ``end`` the two frame times; no
+twist: ``twist`` is NaN), and each :class:`~ekf.filter.FrameObservations` the frame's pixels,
+``(n, 2)`` for a monocular drive and ``(n, 4)`` for a stereo one (:func:`inertial_motion_inputs`
+says how an interval's samples are cut). Its tracks are not cleaned (the velocity drives' cleaning
+is a stereo rule); they are carried through gaps as above, a split track's ``track_id`` that of
+its source track.
 """
 
 from __future__ import annotations
@@ -29,6 +39,7 @@ import numpy as np
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.filter import Filter, FrameObservations, MotionInput
+from vislam.ekf.inertial import InertialDrive
 from vislam.ekf.numerics import NumericalGuard
 from vislam.ekf.runner import (
     Progress,
@@ -144,6 +155,55 @@ def motion_inputs(seq: Sequence, config: FilterConfig) -> list[MotionInput]:
     return [MotionInput(k + 1, tau[k], u[k]) for k in range(seq.n_frames - 1)]
 
 
+#: The twist of a raw-IMU drive's MotionInput: there is none (a velocity filter fed one fails
+#: on it instead of integrating zeros).
+NO_TWIST = np.full(6, np.nan)
+
+
+def inertial_motion_inputs(drive: InertialDrive) -> list[MotionInput]:
+    """The ``T - 1`` motion inputs of a raw-IMU drive: ``out[k]`` the interval
+    ``(t_k, t_k+1]``, ``imu`` its samples as :meth:`ekf.inertial.InertialDrive.imu_between` cuts
+    them: the last sample at or before ``t_k`` first, then every sample stamped in
+    ``(t_k, t_k+1]``. A sample holds its value from its stamp to the next one; in an interval it
+    counts from ``max(stamp, t_k)`` to ``min(next stamp, t_k+1)`` (``start``, ``end``). So the
+    sample straddling a frame is split there, its two parts integrated in the two intervals,
+    and a sample stamped exactly at ``t_k+1`` holds for zero time in this interval and comes
+    first in the next: no stretch of time is lost or integrated twice (as
+    :func:`ekf.strapdown.integrate` and dead-reckoning-imu integrate them)."""
+    ts = np.asarray(drive.timestamps, dtype=float)
+    return [MotionInput(k, float(ts[k] - ts[k - 1]), NO_TWIST, drive.imu_between(k),
+                        float(ts[k - 1]), float(ts[k])) for k in range(1, ts.size)]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Tracks:
+    """The track bookkeeping of a raw-IMU drive, in the form :func:`carry_tracks` and
+    :func:`ekf.runner.tracks_ending` read from a Sequence."""
+
+    obs: Observations
+    n_tracks: int
+    n_frames: int
+    track_origin: np.ndarray
+
+    def track_last_frame(self) -> np.ndarray:
+        last = -np.ones(self.n_tracks, dtype=np.int64)
+        np.maximum.at(last, self.obs.track, self.obs.frame_index)
+        return last
+
+
+def _prepare_inertial(drive: InertialDrive, max_carried: int) -> tuple[InertialDrive, _Tracks, dict]:
+    view = _Tracks(drive.obs, int(drive.n_tracks), drive.n_frames,
+                   np.arange(drive.n_tracks, dtype=np.int64))
+    info: dict = {"clean_tracks": False, "cleaned": False}
+    view, n_splits = carry_tracks(view, max_carried)
+    if n_splits:
+        info["n_carry_splits"] = n_splits
+        ids = None if drive.track_id is None else np.asarray(drive.track_id)[view.track_origin]
+        drive = dataclasses.replace(drive, obs=view.obs, n_tracks=view.n_tracks, track_id=ids)
+    info["track_origin"] = np.asarray(view.track_origin, dtype=np.int64).tolist()
+    return drive, view, info
+
+
 def run_filter(
     filt: Filter,
     seq: Sequence,
@@ -152,26 +212,32 @@ def run_filter(
     name: str | None = None,
     max_carried: int = MAX_CARRIED,
 ) -> Estimate:
-    """Run ``filt`` over ``seq`` (:mod:`ekf.filter` for the order of the calls) and return its
-    Estimate, named ``name`` (default :func:`filter_name`).
+    """Run ``filt`` over ``seq``, a velocity drive (:class:`ekf.sequence.Sequence`) or a raw-IMU
+    drive (:class:`ekf.inertial.InertialDrive`, module docstring), (:mod:`ekf.filter` for the
+    order of the calls) and return its Estimate, named ``name`` (default :func:`filter_name`).
 
     ``progress(frames done)`` is called every 10 frames and after the last. An EstimationError
     a filter raises (through its guard) ends the run. ``max_carried``: the most landmarks carried
     through their tracks' gaps at once (module docstring)."""
-    seq, info = prepare_sequence(seq, config)
-    seq, n_splits = carry_tracks(seq, max_carried)
-    if n_splits:
-        info["n_carry_splits"] = n_splits
-        info["track_origin"] = np.asarray(seq.track_origin, dtype=np.int64).tolist()
+    if isinstance(seq, InertialDrive):
+        seq, view, info = _prepare_inertial(seq, max_carried)
+        ending = tracks_ending(view)
+        motion = inertial_motion_inputs(seq)
+    else:
+        seq, info = prepare_sequence(seq, config)
+        seq, n_splits = carry_tracks(seq, max_carried)
+        if n_splits:
+            info["n_carry_splits"] = n_splits
+            info["track_origin"] = np.asarray(seq.track_origin, dtype=np.int64).tolist()
+        ending = tracks_ending(seq)
+        motion = motion_inputs(seq, config)
     name = name or filter_name(filt)
     guard = NumericalGuard(name, seq.timestamps)
     rec = StepRecorder(seq.n_frames)
-    ending = tracks_ending(seq)
-    motion = motion_inputs(seq, config)
     with blas_limits(config):
         filt.initialise(seq, config, guard)
         for t in range(seq.n_frames):
-            tracks, z = seq.frame(t)
+            tracks, z = seq.obs.frame(t)
             with rec.step(t):
                 if t > 0:
                     filt.predict(motion[t - 1])

@@ -27,7 +27,15 @@ from the sequence's per-frame velocities by ``FilterConfig.velocity_pairing``). 
 samples inside the interval (accelerometer and gyro at a higher rate than the camera) travel in
 the same object as an :class:`ImuSamples` block, so an inertial filter uses the same loop, the same
 ``predict`` call per interval, and integrates the block itself; a filter that needs them checks
-``motion.imu is not None``. The driver builds every MotionInput from the Sequence.
+``motion.imu is not None``. The driver builds every MotionInput from the drive: from a
+velocity drive (:class:`ekf.sequence.Sequence`) its twists, ``imu`` None; from a raw-IMU drive
+(:class:`ekf.inertial.InertialDrive`) its samples (how an interval's samples are cut:
+:func:`ekf.driver.inertial_motion_inputs`), ``start`` and ``end`` the interval's frame times,
+``twist`` NaN (none).
+
+**Observations.** ``FrameObservations.z`` holds the frame's pixels as the drive has them: four
+columns ``[uL, vL, uR, vR]`` for a stereo drive (every velocity drive), two ``[u, v]`` for a
+monocular raw-IMU drive. A raw-IMU filter's ``initialise`` is given the InertialDrive.
 
 **Numerical failures** (:mod:`ekf.numerics`). An update that cannot be computed is rejected with
 ``guard.reject(t, why, n)`` and the state kept; a failure that cannot be rejected (a pose or
@@ -52,8 +60,8 @@ class ImuSamples:
     """Raw inertial samples inside one interval ``(t_k, t_k+1]``, IMU frame, SI units.
 
     ``time`` (n,) s, increasing; ``accel`` (n, 3) specific force, m/s^2; ``gyro`` (n, 3) angular
-    rate, rad/s. Reserved for inertial filters: the sequences read today carry velocities only,
-    and the driver passes ``None``."""
+    rate, rad/s. The driver fills it on raw-IMU drives only (velocity drives: ``None``); its
+    cut at the interval's ends: :func:`ekf.driver.inertial_motion_inputs`."""
 
     time: np.ndarray
     accel: np.ndarray
@@ -65,21 +73,26 @@ class MotionInput:
     """The motion between frames ``frame - 1`` and ``frame``: what one ``predict`` consumes.
 
     ``dt`` the interval's length (s, > 0); ``twist`` (6,) the body twist ``[v (m/s); w (rad/s)]``
-    held over the interval (paper eq. 4: ``U <- exp(-dt twist^) U``); ``imu`` the raw samples
-    inside the interval, or None when the sequence has none."""
+    held over the interval (paper eq. 4: ``U <- exp(-dt twist^) U``; NaN on a raw-IMU drive);
+    ``imu`` the raw samples of the interval, or None when the drive has none; ``start`` and
+    ``end`` the interval's frame times (s; raw-IMU drives, None otherwise), which the samples
+    are integrated between (:func:`ekf.driver.inertial_motion_inputs`)."""
 
     frame: int
     dt: float
     twist: np.ndarray
     imu: ImuSamples | None = None
+    start: float | None = None
+    end: float | None = None
 
 
 @dataclass(frozen=True)
 class FrameObservations:
-    """One camera frame's stereo observations: what one ``update`` consumes.
+    """One camera frame's observations: what one ``update`` consumes.
 
-    ``tracks`` (n,) track indices (rows of the Estimate's landmarks), ``z`` (n, 4) pixels
-    ``[uL, vL, uR, vR]``; ``frame`` the frame index and ``time`` its time stamp (s)."""
+    ``tracks`` (n,) track indices (rows of the Estimate's landmarks), ``z`` (n, 4) stereo pixels
+    ``[uL, vL, uR, vR]`` or, on a monocular raw-IMU drive, (n, 2) pixels ``[u, v]``; ``frame``
+    the frame index and ``time`` its time stamp (s)."""
 
     frame: int
     time: float
@@ -120,7 +133,9 @@ class Filter(Protocol):
     def initialise(self, seq: "Sequence", config: "FilterConfig", guard: "NumericalGuard") -> None:
         """Start at frame 0: pose identity with ``config.initial_pose_cov``, no landmarks.
         ``seq`` is the sequence as the driver runs it (validated, cleaned when
-        ``config.clean_tracks``): calibration, number of tracks, track ends."""
+        ``config.clean_tracks``): calibration, number of tracks, track ends. On a raw-IMU
+        drive ``seq`` is the :class:`ekf.inertial.InertialDrive` (tracks carried, not cleaned)
+        and the world frame is the filter's (vislam's: gravity-aligned, z up)."""
 
     def predict(self, motion: MotionInput) -> None:
         """Propagate the state over one interval (``motion.frame`` the frame it ends at)."""

@@ -58,7 +58,7 @@ from vislam.eval.consistency import (
     AneesResult,
     anees,
 )
-from vislam.eval.bench_scores import trajectory_scores
+from vislam.eval.bench_scores import default_alignment, trajectory_scores, truth_in_gauge
 from vislam.eval.drives import as_given, bench_sequence, identify_models
 from vislam.eval.montecarlo import run_monte_carlo, study_sim_config
 from vislam.eval.registry import display_name
@@ -422,10 +422,11 @@ class DriveStudy:
 
 
 def run_drive(estimators, drive, *, config: FilterConfig | None = None, model: str = "as-given",
-              smoother=None, jobs: int = 1, align: str = "se3") -> DriveStudy:
+              smoother=None, jobs: int = 1, align: str | None = None) -> DriveStudy:
     """Run ``estimators`` (one, a list or ``{label: estimator}``) on one drive and score them
     against its ground truth (``eval.bench_scores.trajectory_scores``, ``align`` before the aligned
-    ATE). ``drive``: a path to a ``.npz`` (ground truth ``DIR/groundtruth/NAME.txt`` beside it,
+    ATE; None: as ``vislam bench`` does, se3 on a velocity drive and yaw on a raw-IMU drive,
+    whose truth is scored in each estimate's frame-0 gauge as bench scores it). ``drive``: a path to a ``.npz`` (ground truth ``DIR/groundtruth/NAME.txt`` beside it,
     as ``vislam bench`` finds it), or a simulated drive (a SimConfig or a SimResult).
     ``model``: "as-given" (the file's values and ``config`` as given) or "identified" (the model
     identified from the drive's own data, as ``vislam bench`` does by default; cached)."""
@@ -453,7 +454,9 @@ def run_drive(estimators, drive, *, config: FilterConfig | None = None, model: s
                 study.errors[n] = res.error
             else:
                 study.estimates[n] = res.estimate
-                study.scores[n] = trajectory_scores(res.estimate, bs.gt, align=align)
+                study.scores[n] = trajectory_scores(
+                    res.estimate, truth_in_gauge(bs.gt, bs.sequence, res.estimate),
+                    align=default_alignment(align, bs.sequence))
 
     def stopped(run_label: str, message: str) -> None:
         for n in by_run[run_label]:

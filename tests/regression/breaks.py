@@ -4,7 +4,9 @@
   ``pixel-noise`` doubles the pixel noise the estimators assume (``FilterConfig.pixel_sigma``
   x 2); ``half-pixel-noise`` halves it (the estimators overconfident); ``no-cross-cov`` runs
   the joint filter without its pose-landmark cross-covariance
-  (``ekf-joint`` is replaced by ``ekf-decoupled``, the same filter with that block dropped).
+  (``ekf-joint`` is replaced by ``ekf-decoupled``, the same filter with that block dropped);
+  ``half-accel-noise`` makes the raw-IMU EKF assume half the accelerometer's noise density
+  (:func:`broken_imu_noise`).
   Unset (the default and CI) nothing is broken.
 * Real data: ``VISLAM_DATA`` or ``../shared/data/kitti-pr3`` beside the repository. Missing data
   skips the test with the reason, except with ``CI=true``, where it fails.
@@ -19,7 +21,7 @@ import pytest
 
 from vislam.ekf.config import FilterConfig
 
-BREAKS = ("pixel-noise", "half-pixel-noise", "no-cross-cov")
+BREAKS = ("pixel-noise", "half-pixel-noise", "no-cross-cov", "half-accel-noise")
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -55,3 +57,14 @@ def run_name(estimator: str) -> str:
     if regression_break() == "no-cross-cov" and estimator == "ekf-joint":
         return "ekf-decoupled"
     return estimator
+
+
+def broken_imu_noise(noise):
+    """The IMU noise (:class:`ekf.inertial.ImuNoise`) a raw-IMU filter is told to assume: ``noise``
+    itself, or with half its accelerometer noise density under the ``half-accel-noise``
+    break."""
+    if regression_break() == "half-accel-noise":
+        from dataclasses import replace
+
+        return replace(noise, accel_noise_density=0.5 * noise.accel_noise_density)
+    return noise
