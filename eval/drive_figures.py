@@ -11,7 +11,7 @@ import numpy as np
 
 from vislam.ekf.estimate import Estimate
 from vislam.eval import plots, plots_top_view
-from vislam.eval.bench_scores import reference_smoother, truth_in_gauge
+from vislam.eval.bench_scores import landmark_truth_in_gauge, reference_smoother, truth_in_gauge
 from vislam.eval.consistency import pose_nees
 from vislam.eval.drives import BenchSequence, is_raw_imu
 from vislam.eval.registry import (
@@ -40,12 +40,16 @@ def sequence_figures(folder: Path, bs: BenchSequence, ests: dict[str, Estimate])
                                            f"{title}: trajectories, top view",
                                            world="raw-imu" if is_raw_imu(bs) else "velocity"))
     map_from = next(
-        (n for n in (*SMOOTHERS, *SMOOTHER_INITIAL_FROM, "ekf-decoupled", "mapping")
+        (n for n in (*SMOOTHERS, *INERTIAL_SMOOTHERS, *SMOOTHER_INITIAL_FROM, "ekf-decoupled", "mapping")
          if n in ests and np.any(ests[n].has_landmark)),
         None,
     )
     if map_from is not None:
-        written.append(plots_top_view.plot_map(folder / "map.png", ests[map_from], gt_pos, bs.landmark_truth,
+        true_map = landmark_truth_in_gauge(gt, bs.sequence, ests[map_from], bs.landmark_truth)
+        map_gt = truth.get(map_from)
+        written.append(plots_top_view.plot_map(folder / "map.png", ests[map_from],
+                                      None if map_gt is None else np.asarray(map_gt.poses)[:, :3, 3],
+                                      true_map,
                                       f"{title}: landmark map ({map_from})"))
     if gt is not None:
         written.append(plots.plot_error_over_distance(

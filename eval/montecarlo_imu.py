@@ -18,7 +18,7 @@ import numpy as np
 
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.inertial import InertialDrive
-from vislam.eval.bench_scores import truth_in_gauge
+from vislam.eval.bench_scores import landmark_truth_in_gauge, truth_in_gauge
 from vislam.eval.groundtruth import GroundTruth
 from vislam.eval.imu_sim import ImuTruth, simulate_imu
 from vislam.eval.imu_sim_config import ImuSimConfig
@@ -74,6 +74,5 @@ def truth_in_estimate_gauge(drive: InertialDrive, est: Estimate, poses: np.ndarr
     (:func:`eval.bench_scores.truth_in_gauge`, what ``vislam bench`` scores poses with); the
     landmarks by the same move, so that map and poses are scored in one world."""
     gt = GroundTruth(np.arange(poses.shape[0]), poses, source="simulation")
-    moved = truth_in_gauge(gt, drive, est).poses
-    move = moved[0] @ np.linalg.inv(poses[0])
-    return moved, landmarks @ move[:3, :3].T + move[:3, 3]
+    return (truth_in_gauge(gt, drive, est).poses,
+            landmark_truth_in_gauge(gt, drive, est, landmarks))

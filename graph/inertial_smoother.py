@@ -75,7 +75,8 @@ from vislam.graph.pose_conversions import estimation_error
 
 log = logging.getLogger(__name__)
 
-ESTIMATOR = "smoother-inertial"
+#: The registry's name (pyproject.toml), so that estimates, errors and figures say the same.
+ESTIMATOR = "smoother-imu"
 #: The incremental solve skips an observation of a landmark already in the graph whose
 #: reprojection error against the predicted pose exceeds this many times ``outlier_px``.
 GATE_FACTOR = 4.0

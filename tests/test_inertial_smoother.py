@@ -399,7 +399,7 @@ def test_an_indeterminate_cholesky_pass_is_run_again_with_qr(monkeypatch, synthe
     def flaky(problem):
         used.append(problem.settings.isam_factorization)
         if problem.settings.isam_factorization == "cholesky":
-            raise EstimationError("smoother-inertial failed while adding frame 9 (iSAM2) near pose "
+            raise EstimationError("smoother-imu failed while adding frame 9 (iSAM2) near pose "
                                   "x3: the linear system is indeterminate (an under-constrained "
                                   "or degenerate variable)")
         return solve(problem)

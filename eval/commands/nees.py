@@ -102,7 +102,6 @@ def run(args: argparse.Namespace) -> int:
     from vislam.eval.imu_sim_config import MAX_IMU_SIM_FRAMES
     from vislam.eval.montecarlo import monte_carlo_nees
     from vislam.eval.output_dir import OutputDir
-    from vislam.eval.registry import estimators_from_flag
     from vislam.eval.signals import deferred
 
     imu = bool(getattr(args, "imu", False))
