@@ -2,8 +2,12 @@
 
 **State.** The IMU's :class:`ekf.strapdown.NavState` (orientation ``world_R_imu``, world velocity
 and position, gyro and accelerometer biases) and the landmarks of the active tracks in anchored
-inverse depth (:mod:`ekf.imu_landmarks`). Error state ``[dth (body, right), dv, dp (world), dbg,
-dba]`` (:mod:`ekf.strapdown`), then 3 rows per landmark in slot order; one dense covariance.
+inverse depth (:mod:`ekf.imu_landmarks`), each anchored in the camera of its first frame, whose
+IMU pose is kept in the state as an *anchor clone* (one per frame where landmarks started, shared
+by them, dropped with its last landmark). Error state ``[dth (body, right), dv, dp (world), dbg,
+dba]`` (:mod:`ekf.strapdown`), then slots of 3 rows in the order they were added: a landmark's
+``[alpha, beta, rho]``, or a clone's ``[dth_c]`` and ``[dp_c]`` (two slots); one dense
+covariance.
 
 **World frame.** Gravity-aligned, z up, as dead-reckoning-imu's (:mod:`ekf.inertial_dead_reckoning`):
 the state at frame 0 comes from the rest at the start (:func:`ekf.imu_init.rest_initial_state`:
@@ -12,51 +16,62 @@ accelerometer bias from the rest, with their covariance).
 
 **Propagation** (:mod:`ekf.imu_propagation`): the mean and the 15 x 15 IMU block sample by sample
 (strapdown's exact discrete step and its discrete noise: white noise ``density^2 / dt`` per step,
-bias walks ``walk^2 dt``), the IMU-landmark cross-covariances once per frame by the interval's
-accumulated transition.
+bias walks ``walk^2 dt``), the cross-covariances of the IMU state with the landmarks and clones
+(which do not move) once per frame by the interval's accumulated transition.
 
 **Update.** Every observation of a known landmark in one stacked update: ``z`` two pixels
 (monocular) or four (stereo, ``[uL, vL, uR, vR]``), each with variance ``pixel_sigma^2``
 (:class:`ekf.config.FilterConfig`); the measurement and its Jacobians are
-:mod:`ekf.imu_landmarks`'s (IL-1, IL-2), the pose's right perturbation ``xi = [R^T dp; dth]``.
+:mod:`ekf.imu_landmarks`'s (IL-1, IL-2): with respect to the landmark, the IMU pose (its
+right perturbation ``xi = [R^T dp; dth]``) and the anchor clone (the anchor camera's right
+perturbation ``Ad(cam_T_imu) [R_c^T dp_c; dth_c]``), all at the current estimates.
 An observation whose point is not in front of the camera, or whose innovation fails the
 chi-square gate at ``gate_probability`` (per observation, 2 or 4 degrees of freedom), is rejected.
 The gain by a Cholesky factor of the innovation covariance, ``P <- P - Y^T Y`` with
-``Y = L^-1 (P H^T)^T``; the error injected into the mean (``NavState.retract``, landmarks added).
+``Y = L^-1 (P H^T)^T``; the error injected into the mean (``NavState.retract``, landmarks added,
+each clone's rotation and position moved and its landmarks' anchors with it).
 
-**Young landmarks** (``mature_ratio``, default 0.3). A landmark whose inverse depth is not yet
-known to ``mature_ratio`` of itself (``sigma_rho >= 0.3 rho``: a monocular landmark until the
+**New landmarks.** A track's first observation starts its landmark (tracks seen once never
+start one: they hold no information): monocular with the honest inverse-depth prior of
+:class:`ekf.imu_landmarks.DepthPrior`, stereo from its disparity (non-positive disparity:
+rejected, tried again at the next observation). Its covariance is its pixels' and prior's, with
+no cross-covariance: the anchor's error is the clone's, a copy of the pose's rows and columns
+at that frame. Why a clone and not a fixed anchor (the velocity filters' chart, with the
+anchor's error folded into the landmark by the chart change IL-3): that change scales the
+anchor's translation error by ``rho``, and linearised at a monocular depth prior 50 % off it
+mis-states the landmark's correlation with the pose. Measured with the fixed anchor on the
+simulated mono room drive (10 s, 800 landmarks): pose ANEES 660 over four seeds, 29 on seed 0
+(96 otherwise) when the chart change alone was evaluated at the true depth; with the clone 11.5
+over eight seeds. On EuRoC's 30 s: aligned ATE 0.038 -> 0.024 m, NEES 801 -> 282.
+
+**Young landmarks** (``mature_ratio``, default 0.5). A landmark whose inverse depth is not yet
+known to ``mature_ratio`` of itself (``sigma_rho >= 0.5 rho``: a monocular landmark until the
 motion has given it its depth) updates only itself: Schmidt's consider update, the gain's rows
 of every other state zero, so the landmark's rows and columns of ``P`` change as in the optimal
 update and every other block stays (the Joseph form's covariance for that gain: consistent for
-any gain). Its observations inform the pose once it is mature. Why: linearised at a depth
-still far from the truth, a monocular observation tells the pose things its depth does not
-support, and over hundreds of landmarks the filter grows overconfident. Measured on the
-simulated room drive (10 s, mono, 800 landmarks, 4 seeds): pose ANEES 1317 without, 660 with;
-EuRoC's 30 s: aligned ATE 0.05 -> 0.04 m, NEES 1100 -> 801. Stereo landmarks are mature from
-their first observation (their disparity gives the depth): nothing changes for them.
+any gain). Its observations inform the pose once it is mature. Why: linearised at a depth still
+far from the truth, a monocular observation tells the pose things its depth does not support.
+Measured on the simulated mono room drive (8 seeds): pose ANEES 15.3 at 0.3, 11.5 at 0.5; 4
+seeds: 28.8 at 0 (every landmark updates everything), 44 at 0.15, 26 at 0.7; EuRoC aligned ATE
+0.0227 m at 0.3, 0.0239 at 0.5, 0.0245 at 0. Stereo landmarks are mature from their first
+observation (their disparity gives the depth).
 
 **Observability** (``linearisation="oc"``, not the default). The four directions the drive
 cannot observe (a world translation, a turn about gravity; :func:`imu_nullspace` for the IMU
-state, the gauge rows ID-7 for a landmark) are carried as the covariance holds them: the IMU
-rows reset at every prior estimate with the least change of the interval's transition that
-maps them there (OC-VINS, Hesch et al. 2014), a landmark's rows those of its start (its
-anchor's, by the chart change); each observation's Jacobian is moved by the least change
-(Frobenius) that makes it blind to them in the columns it touches. Measured: on EuRoC's 30 s it
-halves the NEES (801 -> 442: translation 527 -> 127, rotation 256 -> 253) at an aligned ATE of
-0.034 m against 0.038 m, gating more (3470 observations against 2092); on the simulated mono room
-drive (4 seeds, 800 landmarks) it diverges on two seeds (pose ANEES 660 -> 4342, ATE 0.04 ->
-0.39 m: a young landmark's gauge rows, kept from its depth prior, are far from those at its
-estimate); on stereo it changes little (6.0 -> 7.2). The mono filter's overconfidence is the
-Jacobians' changing linearisation point (spurious information along the unobservable
-directions, Huang et al. 2010); the plain form is the default as the one that does not diverge.
-Transporting the IMU rows alone (no change of the Jacobians) changes nothing measurable.
+state and a clone, zero for a landmark, whose chart moves with its clone) are carried as the
+covariance holds them: the IMU rows reset at every prior estimate with the least change of the
+interval's transition that maps them there (OC-VINS, Hesch et al. 2014); each observation's
+Jacobian is moved by the least change (Frobenius) that makes it blind to them in the columns it
+touches. Measured: with anchor clones it changes nothing that matters (EuRoC NEES 279 -> 278,
+mono room drive 19.5 either way over four seeds). With the fixed anchor (before the clones) it
+halved EuRoC's NEES (801 -> 442) and diverged on two of four mono simulations: the spurious
+information was the chart change's, which the clone removes.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import cho_solve, solve_triangular
+from scipy.linalg import solve_triangular
 from scipy.stats import chi2
 
 from vislam.ekf import imu_landmarks as il
@@ -105,7 +120,7 @@ class ImuEkf:
 
     def __init__(self, noise: ImuNoise | None = None, depth_prior: il.DepthPrior = il.DepthPrior(),
                  rest: RestConfig = RestConfig(),
-                 linearisation: str = "standard", mature_ratio: float = 0.3):
+                 linearisation: str = "standard", mature_ratio: float = 0.5):
         if linearisation not in ("standard", "oc"):
             raise InputError(f"ekf-imu: linearisation must be 'standard' or 'oc', got {linearisation!r}")
         if not np.isfinite(mature_ratio) or mature_ratio < 0:
