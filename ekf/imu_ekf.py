@@ -137,6 +137,9 @@ class ImuEkf:
             raise InputError(f"ekf-imu runs on raw-IMU drives (IMU samples and camera tracks); "
                              f"{getattr(drive, 'name', 'this drive')!r} is a velocity drive")
         calib = drive.calibration
+        if calib.distortion_model != "none":
+            raise InputError(f"{drive.name}: tracks with lens distortion ({calib.distortion_model}) "
+                             "are not supported by ekf-imu yet; give undistorted pixels")
         self.guard = guard
         self.g_world = calib.gravity * WORLD_GRAVITY_DIRECTION
         self.noise = self.noise_override or calib.noise

@@ -112,6 +112,13 @@ def test_refusals():
     seq = simulate_velocity_drive()  # a velocity drive
     with pytest.raises(InputError, match="raw-IMU drives"):
         run_filter(ImuEkf(), seq)
+    import dataclasses
+
+    drive, _ = simulate_imu(ImuSimConfig(n_frames=21, n_landmarks=10))
+    distorted = dataclasses.replace(drive, calibration=dataclasses.replace(
+        drive.calibration, distortion_model="radtan", distortion=(0.1, 0.0, 0.0, 0.0)))
+    with pytest.raises(InputError, match="lens distortion"):
+        run_filter(ImuEkf(), distorted)
 
 
 def simulate_velocity_drive():
