@@ -18,6 +18,7 @@ from scipy.stats import chi2
 from vislam.ekf.driver import run_filter
 from vislam.ekf.geometry import se3_inv, se3_log
 from vislam.ekf.imu_ekf import ImuEkf
+from vislam.ekf.imu_landmarks import DepthPrior
 from vislam.eval.imu_sim import simulate_imu
 from vislam.eval.imu_sim_config import ImuSimConfig
 from vislam.graph.inertial_init import in_estimate_gauge
@@ -49,6 +50,8 @@ def main() -> int:
     ap.add_argument("--landmarks", type=int, default=None, help="scene landmarks (default: the scenario's)")
     ap.add_argument("--mature-ratio", type=float, default=0.5)
     ap.add_argument("--linearisation", choices=("standard", "oc"), default="standard")
+    ap.add_argument("--min-depth", type=float, default=1.0,
+                    help="the monocular depth prior's least depth (m; ekf.imu_landmarks.DepthPrior)")
     args = ap.parse_args()
     poses, lms = [], []
     for seed in range(args.runs):
@@ -56,8 +59,8 @@ def main() -> int:
                                                  n_frames=args.frames, seed=seed,
                                                  n_landmarks=args.landmarks))
         start = time.process_time()
-        est = run_filter(ImuEkf(mature_ratio=args.mature_ratio,
-                                linearisation=args.linearisation), drive)
+        est = run_filter(ImuEkf(mature_ratio=args.mature_ratio, linearisation=args.linearisation,
+                                depth_prior=DepthPrior(args.min_depth)), drive)
         cpu = time.process_time() - start
         p, lm = run_nees(est, truth)
         poses.append(p)
