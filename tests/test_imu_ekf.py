@@ -102,6 +102,12 @@ def test_vislam_run_on_a_simulated_drive(tmp_path):
     import json
     metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
     assert metrics, "vislam run wrote no metrics"
+    # vislam score takes its trajectory on the raw-IMU drive (yaw alignment, its gauge)
+    assert main(["score", str(tmp_path / "out" / "trajectory.tum"), "--data", str(path),
+                 "--out", str(tmp_path / "score"), "--quiet", "--no-reference"]) == 0
+    scored = json.loads((tmp_path / "score" / "score.json").read_text())
+    assert scored["alignment"] == "yaw"
+    assert scored["scores"]["ate_aligned_m"] < 0.05
 
 
 def test_refusals():
