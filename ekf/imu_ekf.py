@@ -77,13 +77,13 @@ from scipy.stats import chi2
 from vislam.ekf import imu_landmarks as il
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.errors import InputError
-from vislam.ekf.geometry import hat
+from vislam.ekf.geometry import hat, so3_exp
 from vislam.ekf.filter import FrameObservations, Landmarks, MotionInput, UpdateCounts
 from vislam.ekf.imu_init import RestConfig, detect_rest, rest_initial_state
 from vislam.ekf.imu_propagation import propagate
 from vislam.ekf.inertial import ImuNoise, InertialDrive
 from vislam.ekf.inertial_dead_reckoning import WORLD_GRAVITY_DIRECTION
-from vislam.ekf.strapdown import N_ERROR, POS, ROT, VEL, exp_and_right_jacobian
+from vislam.ekf.strapdown import N_ERROR, POS, ROT, VEL
 
 #: Error-state rows of the pose, in the order ``[dth; dp]`` (the update's pose columns).
 _POSE_ROWS = np.r_[np.arange(ROT.start, ROT.stop), np.arange(POS.start, POS.stop)]
@@ -412,8 +412,7 @@ class ImuEkf:
         rot = np.flatnonzero(self.lm_kind == CLONE_ROT)
         if rot.size == 0:
             return
-        for s in rot:
-            self.lm_R[s] = self.lm_R[s] @ exp_and_right_jacobian(self.lm_x[s])[0]
+        self.lm_R[rot] = self.lm_R[rot] @ so3_exp(self.lm_x[rot])
         self.lm_p[rot] += self.lm_x[rot + 1]
         self.lm_x[rot] = 0.0
         self.lm_x[rot + 1] = 0.0
