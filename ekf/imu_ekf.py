@@ -2,8 +2,12 @@
 
 **State.** The IMU's :class:`ekf.strapdown.NavState` (orientation ``world_R_imu``, world velocity
 and position, gyro and accelerometer biases) and the landmarks of the active tracks in anchored
-inverse depth (:mod:`ekf.imu_landmarks`). Error state ``[dth (body, right), dv, dp (world), dbg,
-dba]`` (:mod:`ekf.strapdown`), then 3 rows per landmark in slot order; one dense covariance.
+inverse depth (:mod:`ekf.imu_landmarks`), each anchored in the camera of its first frame, whose
+IMU pose is kept in the state as an *anchor clone* (one per frame where landmarks started, shared
+by them, dropped with its last landmark). Error state ``[dth (body, right), dv, dp (world), dbg,
+dba]`` (:mod:`ekf.strapdown`), then slots of 3 rows in the order they were added: a landmark's
+``[alpha, beta, rho]``, or a clone's ``[dth_c]`` and ``[dp_c]`` (two slots); one dense
+covariance.
 
 **World frame.** Gravity-aligned, z up, as dead-reckoning-imu's (:mod:`ekf.inertial_dead_reckoning`):
 the state at frame 0 comes from the rest at the start (:func:`ekf.imu_init.rest_initial_state`:
@@ -12,56 +16,68 @@ accelerometer bias from the rest, with their covariance).
 
 **Propagation** (:mod:`ekf.imu_propagation`): the mean and the 15 x 15 IMU block sample by sample
 (strapdown's exact discrete step and its discrete noise: white noise ``density^2 / dt`` per step,
-bias walks ``walk^2 dt``), the IMU-landmark cross-covariances once per frame by the interval's
-accumulated transition.
+bias walks ``walk^2 dt``), the cross-covariances of the IMU state with the landmarks and clones
+(which do not move) once per frame by the interval's accumulated transition.
 
 **Update.** Every observation of a known landmark in one stacked update: ``z`` two pixels
 (monocular) or four (stereo, ``[uL, vL, uR, vR]``), each with variance ``pixel_sigma^2``
 (:class:`ekf.config.FilterConfig`); the measurement and its Jacobians are
-:mod:`ekf.imu_landmarks`'s (IL-1, IL-2), the pose's right perturbation ``xi = [R^T dp; dth]``.
+:mod:`ekf.imu_landmarks`'s (IL-1, IL-2): with respect to the landmark, the IMU pose (its
+right perturbation ``xi = [R^T dp; dth]``) and the anchor clone (the anchor camera's right
+perturbation ``Ad(cam_T_imu) [R_c^T dp_c; dth_c]``), all at the current estimates.
 An observation whose point is not in front of the camera, or whose innovation fails the
 chi-square gate at ``gate_probability`` (per observation, 2 or 4 degrees of freedom), is rejected.
 The gain by a Cholesky factor of the innovation covariance, ``P <- P - Y^T Y`` with
-``Y = L^-1 (P H^T)^T``; the error injected into the mean (``NavState.retract``, landmarks added).
+``Y = L^-1 (P H^T)^T``; the error injected into the mean (``NavState.retract``, landmarks added,
+each clone's rotation and position moved and its landmarks' anchors with it).
 
-**Young landmarks** (``mature_ratio``, default 0.3). A landmark whose inverse depth is not yet
-known to ``mature_ratio`` of itself (``sigma_rho >= 0.3 rho``: a monocular landmark until the
+**New landmarks.** A track's first observation starts its landmark (tracks seen once never
+start one: they hold no information): monocular with the honest inverse-depth prior of
+:class:`ekf.imu_landmarks.DepthPrior`, stereo from its disparity (non-positive disparity:
+rejected, tried again at the next observation). Its covariance is its pixels' and prior's, with
+no cross-covariance: the anchor's error is the clone's, a copy of the pose's rows and columns
+at that frame. Why a clone and not a fixed anchor (the velocity filters' chart, with the
+anchor's error folded into the landmark by the chart change IL-3): that change scales the
+anchor's translation error by ``rho``, and linearised at a monocular depth prior 50 % off it
+mis-states the landmark's correlation with the pose. Measured with the fixed anchor on the
+simulated mono room drive (10 s, 800 landmarks): pose ANEES 660 over four seeds, 29 on seed 0
+(96 otherwise) when the chart change alone was evaluated at the true depth; with the clone 11.5
+over eight seeds. On EuRoC's 30 s: aligned ATE 0.038 -> 0.024 m, NEES 801 -> 282.
+
+**Young landmarks** (``mature_ratio``, default 0.5). A landmark whose inverse depth is not yet
+known to ``mature_ratio`` of itself (``sigma_rho >= 0.5 rho``: a monocular landmark until the
 motion has given it its depth) updates only itself: Schmidt's consider update, the gain's rows
 of every other state zero, so the landmark's rows and columns of ``P`` change as in the optimal
 update and every other block stays (the Joseph form's covariance for that gain: consistent for
-any gain). Its observations inform the pose once it is mature. Why: linearised at a depth
-still far from the truth, a monocular observation tells the pose things its depth does not
-support, and over hundreds of landmarks the filter grows overconfident. Measured on the
-simulated room drive (10 s, mono, 800 landmarks, 4 seeds): pose ANEES 1317 without, 660 with;
-EuRoC's 30 s: aligned ATE 0.05 -> 0.04 m, NEES 1100 -> 801. Stereo landmarks are mature from
-their first observation (their disparity gives the depth): nothing changes for them.
+any gain). Its observations inform the pose once it is mature. Why: linearised at a depth still
+far from the truth, a monocular observation tells the pose things its depth does not support.
+Measured on the simulated mono room drive (8 seeds): pose ANEES 15.3 at 0.3, 11.5 at 0.5; 4
+seeds: 28.8 at 0 (every landmark updates everything), 44 at 0.15, 26 at 0.7; EuRoC aligned ATE
+0.0227 m at 0.3, 0.0239 at 0.5, 0.0245 at 0. Stereo landmarks are mature from their first
+observation (their disparity gives the depth).
 
 **Observability** (``linearisation="oc"``, not the default). The four directions the drive
 cannot observe (a world translation, a turn about gravity; :func:`imu_nullspace` for the IMU
-state, the gauge rows ID-7 for a landmark) are carried as the covariance holds them: the IMU
-rows reset at every prior estimate with the least change of the interval's transition that
-maps them there (OC-VINS, Hesch et al. 2014), a landmark's rows those of its start (its
-anchor's, by the chart change); each observation's Jacobian is moved by the least change
-(Frobenius) that makes it blind to them in the columns it touches. Measured: on EuRoC's 30 s it
-halves the NEES (801 -> 442: translation 527 -> 127, rotation 256 -> 253) at an aligned ATE of
-0.034 m against 0.038 m, gating more (3470 observations against 2092); on the simulated mono room
-drive (4 seeds, 800 landmarks) it diverges on two seeds (pose ANEES 660 -> 4342, ATE 0.04 ->
-0.39 m: a young landmark's gauge rows, kept from its depth prior, are far from those at its
-estimate); on stereo it changes little (6.0 -> 7.2). The mono filter's overconfidence is the
-Jacobians' changing linearisation point (spurious information along the unobservable
-directions, Huang et al. 2010); the plain form is the default as the one that does not diverge.
-Transporting the IMU rows alone (no change of the Jacobians) changes nothing measurable.
+state and a clone, zero for a landmark, whose chart moves with its clone) are carried as the
+covariance holds them: the IMU rows reset at every prior estimate with the least change of the
+interval's transition that maps them there (OC-VINS, Hesch et al. 2014); each observation's
+Jacobian is moved by the least change (Frobenius) that makes it blind to them in the columns it
+touches. Measured: with anchor clones it changes nothing that matters (EuRoC NEES 279 -> 278,
+mono room drive 19.5 either way over four seeds). With the fixed anchor (before the clones) it
+halved EuRoC's NEES (801 -> 442) and diverged on two of four mono simulations: the spurious
+information was the chart change's, which the clone removes.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import cho_solve, solve_triangular
+from scipy.linalg import solve_triangular
 from scipy.stats import chi2
 
 from vislam.ekf import imu_landmarks as il
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.errors import InputError
+from vislam.ekf.geometry import hat, so3_exp
 from vislam.ekf.filter import FrameObservations, Landmarks, MotionInput, UpdateCounts
 from vislam.ekf.imu_init import RestConfig, detect_rest, rest_initial_state
 from vislam.ekf.imu_propagation import propagate
@@ -72,6 +88,9 @@ from vislam.ekf.strapdown import N_ERROR, POS, ROT, VEL
 #: Error-state rows of the pose, in the order ``[dth; dp]`` (the update's pose columns).
 _POSE_ROWS = np.r_[np.arange(ROT.start, ROT.stop), np.arange(POS.start, POS.stop)]
 _AR3 = np.arange(3)
+#: What a 3-row slot of the state holds: a landmark, or the rotation or position rows of an
+#: anchor clone (the IMU pose at a frame where landmarks started, their anchor).
+LANDMARK, CLONE_ROT, CLONE_POS = 0, 1, 2
 
 
 def imu_nullspace(x) -> np.ndarray:
@@ -101,7 +120,7 @@ class ImuEkf:
 
     def __init__(self, noise: ImuNoise | None = None, depth_prior: il.DepthPrior = il.DepthPrior(),
                  rest: RestConfig = RestConfig(),
-                 linearisation: str = "standard", mature_ratio: float = 0.3):
+                 linearisation: str = "standard", mature_ratio: float = 0.5):
         if linearisation not in ("standard", "oc"):
             raise InputError(f"ekf-imu: linearisation must be 'standard' or 'oc', got {linearisation!r}")
         if not np.isfinite(mature_ratio) or mature_ratio < 0:
@@ -118,6 +137,9 @@ class ImuEkf:
             raise InputError(f"ekf-imu runs on raw-IMU drives (IMU samples and camera tracks); "
                              f"{getattr(drive, 'name', 'this drive')!r} is a velocity drive")
         calib = drive.calibration
+        if calib.distortion_model != "none":
+            raise InputError(f"{drive.name}: tracks with lens distortion ({calib.distortion_model}) "
+                             "are not supported by ekf-imu yet; give undistorted pixels")
         self.guard = guard
         self.g_world = calib.gravity * WORLD_GRAVITY_DIRECTION
         self.noise = self.noise_override or calib.noise
@@ -143,7 +165,12 @@ class ImuEkf:
         self.lm_x = np.zeros((0, 3))
         self.lm_R = np.zeros((0, 3, 3))
         self.lm_p = np.zeros((0, 3))
-        self.lm_track = np.zeros(0, dtype=np.int64)
+        self.lm_track = np.zeros(0, dtype=np.int64)  # -1: a slot of an anchor clone
+        self.lm_kind = np.zeros(0, dtype=np.int64)  # LANDMARK, CLONE_ROT or CLONE_POS
+        self.lm_clone = np.zeros(0, dtype=np.int64)  # the anchor clone's id (its own, for a clone)
+        self.next_clone = 0
+        self.clone_frame, self.clone_now = -1, -1  # the frame of the newest clone, its id
+        self.n_clones_max = 0
         self.map_mean = np.full((n_tracks, 3), np.nan)
         self.map_cov = np.full((n_tracks, 3, 3), np.nan)
         self.n_started = 0
@@ -188,7 +215,7 @@ class ImuEkf:
         new = ~known & self.wanted[tracks]
         n_new = 0
         if new.any():
-            n_new, n_bad = self._start(tracks[new], z[new])
+            n_new, n_bad = self._start(tracks[new], z[new], frame.frame)
             n_rej += n_bad
         return UpdateCounts(n_up, n_rej, n_new)
 
@@ -203,13 +230,20 @@ class ImuEkf:
         self.map_cov[tr] = cov
         keep = np.ones(self.lm_track.size, dtype=bool)
         keep[slots] = False
+        # anchor clones no landmark refers to any more leave too
+        used = np.unique(self.lm_clone[keep & (self.lm_kind == LANDMARK)])
+        keep &= (self.lm_kind == LANDMARK) | np.isin(self.lm_clone, used)
+        if self.clone_now not in used:
+            self.clone_frame = -1
         rows = np.r_[np.arange(N_ERROR), (N_ERROR + 3 * np.flatnonzero(keep)[:, None] + _AR3).ravel()]
         self.P = self.P[np.ix_(rows, rows)]
         self.N = self.N[rows]
-        self.slot[self.lm_track] = -1
+        self.slot[self.lm_track[self.lm_kind == LANDMARK]] = -1
         self.lm_x, self.lm_R, self.lm_p = self.lm_x[keep], self.lm_R[keep], self.lm_p[keep]
         self.lm_track = self.lm_track[keep]
-        self.slot[self.lm_track] = np.arange(self.lm_track.size)
+        self.lm_kind, self.lm_clone = self.lm_kind[keep], self.lm_clone[keep]
+        lm = np.flatnonzero(self.lm_kind == LANDMARK)
+        self.slot[self.lm_track[lm]] = lm
 
     def pose(self) -> np.ndarray:
         return self.x.pose
@@ -219,10 +253,11 @@ class ImuEkf:
         return J @ self.P[:N_ERROR, :N_ERROR] @ J.T
 
     def active_landmarks(self) -> Landmarks:
-        if self.lm_track.size == 0:
+        lm = np.flatnonzero(self.lm_kind == LANDMARK)
+        if lm.size == 0:
             return Landmarks.none()
-        mean, cov = self._world(np.arange(self.lm_track.size))
-        return Landmarks(self.lm_track.copy(), mean, cov)
+        mean, cov = self._world(lm)
+        return Landmarks(self.lm_track[lm].copy(), mean, cov)
 
     def landmark_map(self) -> tuple[np.ndarray, np.ndarray]:
         return self.map_mean.copy(), self.map_cov.copy()
@@ -243,6 +278,7 @@ class ImuEkf:
                                       "sigma_rho": self.depth_prior.sigma},
             "n_landmarks_started": int(self.n_started),
             "n_gated": int(self.n_gated),
+            "most_anchor_clones": int(self.n_clones_max),
             "imu_noise": self.noise.as_array().tolist(),
         }
 
@@ -258,10 +294,15 @@ class ImuEkf:
         """World points (k, 3) and covariances (k, 3, 3) of landmark slots (NaN where the
         inverse depth is not positive)."""
         x = self.lm_x[slots]
-        R_a, p_a = self.lm_R[slots], self.lm_p[slots]
+        R_a, p_a, R_c, rows = self._anchors(slots)
         mean = idp.world_point(x, R_a, p_a)
-        J = idp.world_jacobian(x, R_a)
-        rows = N_ERROR + 3 * slots[:, None] + _AR3
+        J = np.empty((slots.size, 3, 9))
+        J[:, :, :3] = idp.world_jacobian(x, R_a)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = idp.bearing(x) / x[:, 2:3]  # the point in the anchor camera
+        G = np.concatenate([R_a, -R_a @ hat(q)], axis=2) @ self.Ad_cam  # d m / d xi_imu (clone)
+        J[:, :, 3:6] = G[:, :, 3:]
+        J[:, :, 6:] = G[:, :, :3] @ np.swapaxes(R_c, 1, 2)
         Pll = self.P[rows[:, :, None], rows[:, None, :]]
         cov = J @ Pll @ np.swapaxes(J, 1, 2)
         bad = ~(x[:, 2] > 0)
@@ -274,33 +315,56 @@ class ImuEkf:
         (k, m, 3) and whether each point is in front, at the state ``x_state`` and landmark
         coordinates ``lm_x``."""
         T = x_state.pose
-        x, R_a, p_a = lm_x[slots], self.lm_R[slots], self.lm_p[slots]
+        x = lm_x[slots]
+        R_a, p_a, R_c, rows = self._anchors(slots)
         q_i = il.imu_points(x, R_a, p_a, T)
         zhat, dz_dq, depth = self.model.predict(q_i)
         front = (depth > 0) & (x[:, 2] > 0) & np.all(np.isfinite(zhat), axis=1)
-        Hl = dz_dq @ il.landmark_jacobian(x, R_a, p_a, T)  # (k, m, 3)
+        Hl = np.empty((slots.size, dz_dq.shape[1], 9))  # landmark, then its anchor clone
+        Hl[:, :, :3] = dz_dq @ il.landmark_jacobian(x, R_a, p_a, T)
+        Ha = dz_dq @ il.anchor_jacobian(x, R_a, T) @ self.Ad_cam  # of the clone's xi = [t; phi]
+        Hl[:, :, 3:6] = Ha[:, :, 3:]
+        Hl[:, :, 6:] = Ha[:, :, :3] @ np.swapaxes(R_c, 1, 2)
         Hxi = dz_dq @ il.pose_jacobian(q_i)  # (k, m, 6) of xi = [t; phi]
         Hp = np.empty_like(Hxi)  # of [dth; dp]
         Hp[:, :, :3] = Hxi[:, :, 3:]
         Hp[:, :, 3:] = Hxi[:, :, :3] @ x_state.R.T
         if self.linearisation == "oc":
-            Hp, Hl = self._observability_constrained(slots, Hp, Hl)
-        return z - zhat, Hp, Hl, front
+            Hp, Hl = self._observability_constrained(rows, Hp, Hl)
+        return z - zhat, Hp, Hl, front, rows
 
-    def _observability_constrained(self, slots, Hp, Hl):
+    def _anchors(self, slots: np.ndarray):
+        """For landmark slots: the anchor cameras ``(R_a (k, 3, 3), p_a (k, 3))`` from their
+        clones' means, the clones' rotations ``R_c`` (k, 3, 3), and each observation's state
+        rows (k, 9): the landmark's three, then its clone's six ``[dth_c; dp_c]``."""
+        cs = self._clone_slots(self.lm_clone[slots])
+        R_c, p_c = self.lm_R[cs], self.lm_p[cs]
+        R_ic, t_ic = self.imu_T_cam[:3, :3], self.imu_T_cam[:3, 3]
+        R_a = R_c @ R_ic
+        p_a = p_c + R_c @ t_ic
+        rows = np.empty((slots.size, 9), dtype=np.int64)
+        rows[:, :3] = N_ERROR + 3 * slots[:, None] + _AR3
+        rows[:, 3:] = N_ERROR + 3 * cs[:, None] + np.arange(6)
+        return R_a, p_a, R_c, rows
+
+    def _clone_slots(self, ids: np.ndarray) -> np.ndarray:
+        """The first slot (its rotation's) of each anchor clone ``ids``."""
+        first = np.flatnonzero(self.lm_kind == CLONE_ROT)
+        return first[np.searchsorted(self.lm_clone[first], ids)]
+
+    def _observability_constrained(self, rows, Hp, Hl):
         """``[Hp, Hl]`` of each observation moved by the least change (Frobenius) that makes
         it blind to the four unobservable directions (a world translation and a turn about
         gravity: OC-VINS, Hesch et al. 2014), in the columns it touches ``[dth, dp, x_i]``.
         The directions are those the covariance holds (``self.N``: set at frame 0 and carried
         by every transition and landmark start since), not recomputed at the current estimate,
         whose own directions an update has moved."""
-        k = slots.size
-        N = np.empty((k, 9, 4))
+        k, q = rows.shape
+        N = np.empty((k, 6 + q, 4))
         N[:, :3] = self.N[ROT]
         N[:, 3:6] = self.N[POS]
-        rows = N_ERROR + 3 * slots[:, None] + _AR3
         N[:, 6:] = self.N[rows]
-        H = np.concatenate([Hp, Hl], axis=2)  # (k, m, 9)
+        H = np.concatenate([Hp, Hl], axis=2)  # (k, m, 6 + q)
         NtN = np.swapaxes(N, 1, 2) @ N
         H = H - (H @ N) @ np.linalg.solve(NtN, np.swapaxes(N, 1, 2))
         return H[:, :, :6], H[:, :, 6:]
@@ -308,15 +372,14 @@ class ImuEkf:
     def _update(self, slots: np.ndarray, z: np.ndarray, t: int) -> tuple[int, int]:
         """Gate, then update with the observations of mature landmarks (every state moved),
         then with those of young ones (only the young landmarks moved: Schmidt's update)."""
-        rows = N_ERROR + 3 * slots[:, None] + _AR3  # (k, 3)
-        r, Hp, Hl, front = self._linearise(self.x, self.lm_x, slots, z)
+        r, Hp, Hl, front, rows = self._linearise(self.x, self.lm_x, slots, z)
         P = self.P
         m = self.model.rows
         ok = front.copy()
         if ok.any():  # per-observation chi-square gate
             Ppp = P[np.ix_(_POSE_ROWS, _POSE_ROWS)]
-            Ppl = P[_POSE_ROWS[None, :, None], rows[ok][:, None, :]]  # (k, 6, 3)
-            Pll = P[rows[ok][:, :, None], rows[ok][:, None, :]]  # (k, 3, 3)
+            Ppl = P[_POSE_ROWS[None, :, None], rows[ok][:, None, :]]  # (k, 6, q)
+            Pll = P[rows[ok][:, :, None], rows[ok][:, None, :]]  # (k, q, q)
             hp, hl = Hp[ok], Hl[ok]
             HpT, HlT = np.swapaxes(hp, 1, 2), np.swapaxes(hl, 1, 2)
             cross = hp @ Ppl @ HlT
@@ -336,12 +399,23 @@ class ImuEkf:
             n_rej += int(full.sum()) - n
         late = ok & young
         if late.any():
-            r, Hp, Hl, front = self._linearise(self.x, self.lm_x, slots[late], z[late])
-            rows = rows[late][front]
-            n = self._stacked(Hp[front], Hl[front], r[front], rows, t, rows.ravel())
+            r, Hp, Hl, front, rows = self._linearise(self.x, self.lm_x, slots[late], z[late])
+            rows = rows[front]
+            n = self._stacked(Hp[front], Hl[front], r[front], rows, t, rows[:, :3].ravel())
             n_up += n
             n_rej += int(late.sum()) - n
         return n_up, n_rej
+
+    def _correct_clones(self) -> None:
+        """Move the anchor clones' means by the corrections an update left in their rows of
+        ``lm_x`` (rotation on the right, position added), and zero those rows."""
+        rot = np.flatnonzero(self.lm_kind == CLONE_ROT)
+        if rot.size == 0:
+            return
+        self.lm_R[rot] = self.lm_R[rot] @ so3_exp(self.lm_x[rot])
+        self.lm_p[rot] += self.lm_x[rot + 1]
+        self.lm_x[rot] = 0.0
+        self.lm_x[rot + 1] = 0.0
 
     def _young(self, slots: np.ndarray) -> np.ndarray:
         """Landmarks whose inverse depth is not yet known to ``mature_ratio`` of itself."""
@@ -367,10 +441,11 @@ class ImuEkf:
         flat = rows.ravel()
         # P H^T (N, k m), rows of H ordered (observation, pixel)
         PHt = P[:, _POSE_ROWS] @ Hp.reshape(-1, 6).T
-        G = P[:, flat].reshape(N, k, 3)
+        q = rows.shape[1]
+        G = P[:, flat].reshape(N, k, q)
         PHt += np.einsum("nkj,kmj->nkm", G, Hl).reshape(N, k * m)
         S = Hp.reshape(-1, 6) @ PHt[_POSE_ROWS]
-        B = PHt[flat].reshape(k, 3, k * m)
+        B = PHt[flat].reshape(k, q, k * m)
         S += np.einsum("kmj,kjc->kmc", Hl, B).reshape(k * m, k * m)
         S = 0.5 * (S + S.T)
         S[np.diag_indices_from(S)] += self.pixel_var
@@ -393,6 +468,7 @@ class ImuEkf:
             self.P = 0.5 * (P + P.T)
             self.x = self.x.retract(d[:N_ERROR])
             self.lm_x = self.lm_x + d[N_ERROR:].reshape(-1, 3)
+            self._correct_clones()
             return k
         Yall = solve_triangular(L, PHt.T, lower=True, check_finite=False)
         block = P[moved] - Y.T @ Yall  # the moved rows, every column
@@ -404,9 +480,12 @@ class ImuEkf:
         lm[moved - N_ERROR] += d
         return k
 
-    def _start(self, tracks: np.ndarray, z: np.ndarray) -> tuple[int, int]:
-        """Start landmarks for ``tracks`` from their first pixels ``z``; returns (started,
-        rejected)."""
+    def _start(self, tracks: np.ndarray, z: np.ndarray, t: int) -> tuple[int, int]:
+        """Start landmarks for ``tracks`` from their first pixels ``z`` at frame ``t``, anchored
+        in this frame's camera: its IMU pose is cloned into the state once (the anchor clone,
+        shared by the landmarks started here), so that a landmark's error is its pixels' and
+        its prior's alone, uncorrelated with anything else, and its anchor's error is the
+        clone's. Returns (started, rejected)."""
         if self.model.baseline is not None:
             ok = (z[:, 0] - z[:, 2]) > 0
             tracks, z = tracks[ok], z[ok]
@@ -416,30 +495,48 @@ class ImuEkf:
         k = tracks.size
         if k == 0:
             return 0, n_bad
+        if self.clone_frame != t:
+            self._clone(t)
         x, C = il.initial_landmarks(z, self.model.K, self.model.baseline, self.pixel_var,
                                     self.depth_prior)
-        world_T_cam = self.x.pose @ self.imu_T_cam
-        # x's error in the fixed chart from the pose error (IL-3): J_e (k, 3, 15)
-        Je = il.chart_change_jacobian(x) @ (self.Ad_cam @ self._xi_of_error())
-        Je = Je.reshape(3 * k, N_ERROR)
         P = self.P
         N = P.shape[0]
-        cross = Je @ P[:N_ERROR, :]  # (3k, N)
-        Pnn = cross[:, :N_ERROR] @ Je.T
-        for i in range(k):
-            Pnn[3 * i:3 * i + 3, 3 * i:3 * i + 3] += C[i]
-        P_new = np.empty((N + 3 * k, N + 3 * k))
+        P_new = np.zeros((N + 3 * k, N + 3 * k))
         P_new[:N, :N] = P
-        P_new[N:, :N] = cross
-        P_new[:N, N:] = cross.T
-        P_new[N:, N:] = 0.5 * (Pnn + Pnn.T)
+        for i in range(k):
+            P_new[N + 3 * i:N + 3 * i + 3, N + 3 * i:N + 3 * i + 3] = C[i]
         self.P = P_new
-        self.N = np.concatenate([self.N, Je @ self.N[:N_ERROR]])
-        base = self.lm_track.size
-        self.lm_x = np.concatenate([self.lm_x, x])
-        self.lm_R = np.concatenate([self.lm_R, np.broadcast_to(world_T_cam[:3, :3], (k, 3, 3))])
-        self.lm_p = np.concatenate([self.lm_p, np.broadcast_to(world_T_cam[:3, 3], (k, 3))])
-        self.lm_track = np.concatenate([self.lm_track, tracks])
-        self.slot[tracks] = base + np.arange(k)
+        self.N = np.concatenate([self.N, np.zeros((3 * k, self.N.shape[1]))])
+        self._add_slots(x, np.zeros((k, 3, 3)), np.zeros((k, 3)), tracks,
+                        np.full(k, LANDMARK), np.full(k, self.clone_now))
+        self.slot[tracks] = self.lm_track.size - k + np.arange(k)
         self.n_started += k
         return k, n_bad
+
+    def _clone(self, t: int) -> None:
+        """Append a copy of the IMU pose ``[dth; dp]`` (mean and every covariance) as the anchor
+        clone of frame ``t``."""
+        P = self.P
+        N = P.shape[0]
+        P_new = np.empty((N + 6, N + 6))
+        P_new[:N, :N] = P
+        P_new[N:, :N] = P[_POSE_ROWS]
+        P_new[:N, N:] = P[:, _POSE_ROWS]
+        P_new[N:, N:] = P[np.ix_(_POSE_ROWS, _POSE_ROWS)]
+        self.P = P_new
+        self.N = np.concatenate([self.N, self.N[_POSE_ROWS]])
+        cid = self.next_clone
+        self.next_clone += 1
+        self._add_slots(np.zeros((2, 3)), np.stack([self.x.R, np.zeros((3, 3))]),
+                        np.stack([self.x.p, np.zeros(3)]), np.array([-1, -1]),
+                        np.array([CLONE_ROT, CLONE_POS]), np.array([cid, cid]))
+        self.clone_frame, self.clone_now = t, cid
+        self.n_clones_max = max(self.n_clones_max, int((self.lm_kind == CLONE_ROT).sum()))
+
+    def _add_slots(self, x, R, p, track, kind, clone) -> None:
+        self.lm_x = np.concatenate([self.lm_x, x])
+        self.lm_R = np.concatenate([self.lm_R, R])
+        self.lm_p = np.concatenate([self.lm_p, p])
+        self.lm_track = np.concatenate([self.lm_track, track])
+        self.lm_kind = np.concatenate([self.lm_kind, kind])
+        self.lm_clone = np.concatenate([self.lm_clone, clone])

@@ -142,7 +142,7 @@ def frame0_gauge(truth: GroundTruth, est_pose0: np.ndarray) -> GroundTruth:
     its z axis (EuRoC's IMU has x up), while the estimate's covariance rightly gives yaw and
     position at frame 0 no uncertainty (they are its gauge): so pose errors are scored in the
     estimate's gauge."""
-    if truth.n == 0 or truth.frames[0] != 0:
+    if len(truth.frames) == 0 or truth.frames[0] != 0:
         return truth
     from dataclasses import replace
 

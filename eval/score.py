@@ -48,7 +48,8 @@ from vislam.ekf.estimate import Estimate
 from vislam.eval.bench_scores import RPE_DEFINITION, score_sequence
 from vislam.eval.drives import KnownTruth, collect_sequences
 from vislam.eval.metrics import ALIGN_DESCRIPTIONS, check_align_mode
-from vislam.eval.registry import SMOOTHER_INITIAL_FROM, SMOOTHERS, uses_initial
+from vislam.eval.registry import (INERTIAL_SMOOTHERS, SMOOTHER_INITIAL_FROM, SMOOTHERS, drive_kind,
+                                  uses_initial)
 from vislam.eval.study import JobFailure, JobResult, run_jobs
 
 log = logging.getLogger(__name__)
@@ -321,9 +322,19 @@ def load_drive(data: str | Path):
     return bs
 
 
-def reference_estimators(smoother) -> list[str]:
+def reference_name(bs=None) -> str:
+    """The reference smoother of the drive ``bs``: :data:`REFERENCE`, or on a raw-IMU drive the
+    raw-IMU smoother (``vislam bench``'s reference there)."""
+    if bs is not None and drive_kind(bs.sequence) == "raw-imu":
+        return INERTIAL_SMOOTHERS[0]
+    return REFERENCE
+
+
+def reference_estimators(smoother, bs=None) -> list[str]:
     """The estimators ``vislam bench`` runs for its reference: the EKF the batch smoother
-    starts from (when it starts from one) and the smoother."""
+    starts from (when it starts from one) and the smoother; on a raw-IMU drive its smoother."""
+    if reference_name(bs) != REFERENCE:
+        return [reference_name(bs)]
     return ([SMOOTHER_INITIAL_FROM[0], REFERENCE] if uses_initial(REFERENCE, smoother)
             else [REFERENCE])
 
@@ -333,10 +344,10 @@ def run_reference(bs, config, smoother, show_progress: bool = False):
     (eval.study.run_jobs with :func:`reference_estimators`, the drive's own settings):
     an eval.study.JobResult, or an eval.study.JobFailure when it failed."""
     config = bs.config if bs.config is not None else config
-    names = reference_estimators(smoother)
+    names = reference_estimators(smoother, bs)
     outcomes = run_jobs({bs.name: bs.sequence}, names, config, jobs=1,
                         show_progress=show_progress, smoother=smoother)
-    return outcomes[(bs.name, REFERENCE)]
+    return outcomes[(bs.name, reference_name(bs))]
 
 
 # --- scoring ---------------------------------------------------------------------------------
@@ -359,11 +370,12 @@ def score_on_frames(bs, est: Estimate, frames: np.ndarray, reference=None,
     outcomes = {est.estimator: JobResult(bs.name, est.estimator, est, 0.0)}
     names = [est.estimator]
     if reference is not None:
-        names.append(REFERENCE)
+        ref_name = reference_name(bs)
+        names.append(ref_name)
         if isinstance(reference, JobFailure):
-            outcomes[REFERENCE] = reference
+            outcomes[ref_name] = reference
         else:
-            outcomes[REFERENCE] = dataclasses.replace(
+            outcomes[ref_name] = dataclasses.replace(
                 reference, estimate=restrict_estimate(reference.estimate, frames))
     entry = score_sequence(sub, names, outcomes, align=align)
     for row in entry["estimators"]:  # times of runs are not what is scored here
@@ -396,7 +408,7 @@ def score(traj: Trajectory, bs, *, config, smoother, cov=None, t_max_diff: float
     ref = run_reference(bs, config, smoother, show_progress) if reference else None
     entry = score_on_frames(bs, est, assoc.frames, ref, align=align)
     row = next(r for r in entry["estimators"] if r["name"] == name)
-    ref_row = next((r for r in entry["estimators"] if r["name"] == REFERENCE), None)
+    ref_row = next((r for r in entry["estimators"] if r["name"] == reference_name(bs)), None)
     nees_note = None
     if cov is None:
         nees_note = "no --cov given: the NEES figures are null (they need the pose covariances)"
@@ -419,7 +431,7 @@ def score(traj: Trajectory, bs, *, config, smoother, cov=None, t_max_diff: float
         "alignment_definition": f"ate_aligned_m (ATE al.): the ATE after {ALIGN_DESCRIPTIONS[align]}",
         "rpe_definition": RPE_DEFINITION,
         "reference": None if not reference else {
-            "name": REFERENCE, "estimators_run": reference_estimators(smoother),
+            "name": reference_name(bs), "estimators_run": reference_estimators(smoother, bs),
             "error": None if ref_row is None else ref_row["error"],
             "definition": "vs_smoother compares the trajectory with the batch smoother run on "
                           "the same data as vislam bench runs it (started from ekf-invariant's "

@@ -6,7 +6,6 @@ import pytest
 
 from vislam.ekf.driver import inertial_motion_inputs, run_filter
 from vislam.ekf.filter import FrameObservations, Landmarks, MotionInput, UpdateCounts
-from vislam.ekf.imu_init import InitialState
 from vislam.ekf.inertial import InertialDrive
 from vislam.ekf.inertial_dead_reckoning import WORLD_GRAVITY_DIRECTION, strapdown_frames
 from vislam.ekf.strapdown import integrate

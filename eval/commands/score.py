@@ -80,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from vislam.eval.output_dir import OutputDir
     from vislam.eval.readings import score_markdown
+    from vislam.eval.bench_scores import default_alignment
     from vislam.eval.score import (
         SCORE_FILES,
         associate,
@@ -108,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
         (bs,) = drives_under_model(args, [plain], config, smoother, model)
         result = score(traj, bs, config=config, smoother=smoother, cov=cov,
                        t_max_diff=args.t_max_diff, t_offset=args.t_offset,
-                       align=getattr(args, "align", None) or "se3", reference=not args.no_reference,
+                       align=default_alignment(getattr(args, "align", None), bs.sequence),
+                       reference=not args.no_reference,
                        show_progress=not args.quiet, assoc=assoc)
         result["settings"] = {
             **environment_settings(),
