@@ -40,7 +40,7 @@ import numpy as np
 from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.geometry import hat, so3_exp
-from vislam.ekf.inertial import ImuNoise
+from vislam.ekf.inertial import ACCEL_TURN_ON_BIAS_SIGMA, ImuNoise
 from vislam.ekf.strapdown import BA, BG, N_ERROR, POS, ROT, VEL, NavState
 
 
@@ -53,7 +53,7 @@ class RestConfig:
     gyro_mean_tol: float = 0.015
     margin_windows: int = 2
     min_rest_s: float = 0.4
-    accel_bias_sigma: float = 0.05
+    accel_bias_sigma: float = ACCEL_TURN_ON_BIAS_SIGMA
     velocity_sigma: float = 0.0
     position_sigma: float = 1e-3
     yaw_sigma: float = 1e-4

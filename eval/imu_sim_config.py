@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vislam.ekf.errors import InputError
-from vislam.ekf.inertial import STANDARD_GRAVITY, ImuNoise
+from vislam.ekf.inertial import ACCEL_TURN_ON_BIAS_SIGMA, STANDARD_GRAVITY, ImuNoise
 from vislam.eval.imu_trajectories import DEFAULT_RAMP_S, SCENARIOS
 
 #: Camera kinds the simulator makes: two pixel columns (monocular) or four (stereo).
@@ -90,7 +90,7 @@ class ImuSimConfig:
     ramp_s: float | None = None
     noise: ImuNoise = field(default_factory=lambda: EUROC_IMU_NOISE)
     gyro_bias_sigma: float = 0.005
-    accel_bias_sigma: float = 0.05
+    accel_bias_sigma: float = ACCEL_TURN_ON_BIAS_SIGMA
     gravity: float = STANDARD_GRAVITY
     pixel_sigma: float = 1.0
     n_landmarks: int | None = None
