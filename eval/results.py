@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from vislam.ekf.errors import InputError
+from vislam.eval.drive_data import DriveData, read_drive_data
 # DriveRpe, ErrorStats and SegmentLengthRpe are the types of EstimatorResult.rpe_drive, read here
 from vislam.eval.results_rpe import DriveRpe, ErrorStats, SegmentLengthRpe, drive_rpe_of  # noqa: F401
 from vislam.eval.json_reading import (
@@ -175,32 +176,7 @@ class DriveResult:
         if not isinstance(path, str) or not path:
             raise InputError(f"{self.folder.parent}: neither {RESULTS_FILE} nor {SETTINGS_FILE} "
                              f"names a simulation or a data file for drive {self.name!r}")
-        from vislam.eval.groundtruth import find_ground_truth
-        from vislam.eval.loader import load_sequence
-        from vislam.eval.safe_reading import read_npz
-
-        seq = load_sequence(path)
-        gt = find_ground_truth(path)
-        landmarks = None
-        beside = Path(path).with_name(f"{Path(path).stem}_landmarks.npz")
-        if beside.is_file():
-            held = read_npz(beside, ("landmarks",)).get("landmarks")
-            if held is not None and held.shape == (seq.n_tracks, 3):
-                landmarks = np.asarray(held, dtype=float)
-        return DriveData(seq, None if gt is None else np.asarray(gt.frames),
-                         None if gt is None else np.asarray(gt.poses), landmarks)
-
-
-@dataclass(frozen=True)
-class DriveData:
-    """A drive's measurements (``ekf.sequence.Sequence``) and its truth where known: poses
-    ``truth_poses`` (n, 4, 4) world_T_imu at steps ``truth_frames`` (n,), and the true landmark
-    of each track (n_tracks, 3)."""
-
-    sequence: object
-    truth_frames: np.ndarray | None
-    truth_poses: np.ndarray | None
-    landmark_truth: np.ndarray | None
+        return read_drive_data(Path(path))
 
 
 @dataclass(frozen=True)

@@ -65,6 +65,16 @@ def test_bench_a_folder_of_both_kinds(drives, tmp_path, capsys, monkeypatch):
     # the figure shows what summary.md and results.json say: the truth in the estimate's gauge
     figure_mean = float(np.nanmean(drawn["imu-room-mono-2"]["dead-reckoning-imu"]))
     assert figure_mean == pytest.approx(row["nees_pose_mean"], rel=1e-6)
+    # and so does the results folder read back (the notebook's way): the drive made again, its
+    # truth in the estimate's gauge
+    from vislam.eval.consistency import pose_nees
+    from vislam.eval.results import load_results
+
+    drive = load_results(out).bench.drives["imu-room-mono-2"]
+    data = drive.load_drive()
+    est = drive.estimators["dead-reckoning-imu"].load_estimate()
+    assert float(np.nanmean(pose_nees(est, *data.truth_for(est)))) == pytest.approx(
+        row["nees_pose_mean"], rel=1e-6)
     assert (out / "imu-room-mono-2" / "dead-reckoning-imu.estimate.npz").is_file()
 
 

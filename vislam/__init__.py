@@ -54,7 +54,7 @@ _EXPORTS = {
     "EstimatorResult": "vislam.eval.results",
     "NeesResults": "vislam.eval.results",
     "NeesEstimatorResult": "vislam.eval.results",
-    "DriveData": "vislam.eval.results",
+    "DriveData": "vislam.eval.drive_data",
     "read_tum": "vislam.eval.export",
     "COLOURS": "vislam.eval.plots",
 }
