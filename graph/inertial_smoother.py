@@ -9,9 +9,11 @@ track j that could be triangulated (:mod:`graph.inertial_factors`).
 **Factors**: a ``CombinedImuFactor`` per interval (``PreintegratedCombinedMeasurements`` of the
 samples between the two frames, bias random walk inside, noise from the drive's
 :class:`ekf.inertial.ImuNoise`: :func:`graph.inertial_factors.preintegration_params`); a
-``GenericProjectionFactorCal3_S2`` per observation of a triangulated track, with
-``body_P_sensor = imu_T_cam`` and a Huber kernel at ``huber_k`` sigmas of ``pixel_sigma``;
-priors at frame 0 and zero-velocity priors over the rest (below).
+``GenericProjectionFactorCal3_S2`` per observation of a triangulated track (a stereo drive's:
+``GenericStereoFactor3D`` on ``[uL, uR, v]``, ``v`` the rows' mean, sigma / sqrt(2) on it, the
+landmark triangulated from the left pixels), with ``body_P_sensor = imu_T_cam`` and a Huber
+kernel at ``huber_k`` sigmas of ``pixel_sigma``; priors at frame 0 and zero-velocity priors
+over the rest (below).
 
 **Initialisation** (:mod:`graph.inertial_init`): a rest at the start of the drive is detected
 from the IMU alone; it gives the gravity direction (hence roll and pitch of frame 0), the gyro
@@ -176,6 +178,8 @@ class InertialProblem:
     robust_noise: gtsam.noiseModel.Base
     rest_frames: np.ndarray
     pixel_sigma: float  # the sigma of pixel_noise
+    #: the rectified pair of a stereo drive (None: one camera)
+    stereo: gtsam.Cal3_S2Stereo | None = None
 
     @property
     def n_frames(self) -> int:
@@ -214,18 +218,23 @@ class InertialProblem:
         return gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self.pims[k - 1])
 
     def projection(self, z, frame: int, track: int, robust: bool = True):
-        return gtsam.GenericProjectionFactorCal3_S2(
-            np.asarray(z, dtype=float), self.robust_noise if robust else self.pixel_noise,
-            X(frame), L(track), self.calibration, self.body_P_sensor)
+        """The factor of one observation: a monocular pixel ``[u, v]``, or a stereo one
+        ``[uL, vL, uR, vR]`` as GTSAM's ``[uL, uR, v]`` with ``v`` the rows' mean (the velocity
+        drives' smoother does the same, :mod:`graph.factors`)."""
+        noise = self.robust_noise if robust else self.pixel_noise
+        if self.stereo is None:
+            return gtsam.GenericProjectionFactorCal3_S2(
+                np.asarray(z, dtype=float), noise, X(frame), L(track), self.calibration,
+                self.body_P_sensor)
+        u_l, v_l, u_r, v_r = (float(x) for x in z)
+        return gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u_l, u_r, 0.5 * (v_l + v_r)), noise,
+                                           X(frame), L(track), self.stereo, self.body_P_sensor)
 
 
 def build_problem(drive: InertialDrive, settings: InertialSmootherSettings = InertialSmootherSettings()
                   ) -> InertialProblem:
     """The rest, the priors and the preintegrated IMU of every interval (module docstring)."""
     c = drive.calibration
-    if c.stereo:
-        raise InputError(f"{drive.name}: stereo tracks are not supported by the raw-IMU smoother yet; "
-                         "give the left camera's tracks")
     if c.distortion_model != "none":
         raise InputError(f"{drive.name}: tracks with lens distortion ({c.distortion_model}) are not "
                          "supported by the raw-IMU smoother yet; give undistorted pixels")
@@ -250,28 +259,40 @@ def build_problem(drive: InertialDrive, settings: InertialSmootherSettings = Ine
             for k in range(1, drive.n_frames)]
     K = c.K
     sigma = settings.pixel_sigma if settings.pixel_sigma is not None else settings.pixel_sigma_start
-    pixel, robust = pixel_noise_models(sigma, settings.huber_k)
+    pixel, robust = pixel_noise_models(sigma, settings.huber_k, c.stereo)
+    stereo = (gtsam.Cal3_S2Stereo(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2], float(c.baseline))
+              if c.stereo else None)
     return InertialProblem(
         drive, settings, rest, world_R_imu0, bias0, pims,
         gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2]),
-        gtsam.Pose3(c.imu_T_cam), pixel, robust, np.flatnonzero(t <= rest.t_end), float(sigma))
+        gtsam.Pose3(c.imu_T_cam), pixel, robust, np.flatnonzero(t <= rest.t_end), float(sigma),
+        stereo)
 
 
-def pixel_noise_models(sigma: float, huber_k: float) -> tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]:
-    """The Gaussian pixel noise (``sigma`` px each axis) and the same under Huber at ``huber_k`` sigmas."""
-    pixel = gtsam.noiseModel.Isotropic.Sigma(2, float(sigma))
+def pixel_noise_models(sigma: float, huber_k: float, stereo: bool = False
+                       ) -> tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]:
+    """The Gaussian pixel noise (``sigma`` px each axis; a stereo observation's ``[uL, uR, v]``
+    with ``sigma / sqrt(2)`` on the mean row ``v``) and the same under Huber at ``huber_k``
+    sigmas."""
+    if stereo:
+        pixel = gtsam.noiseModel.Diagonal.Sigmas(float(sigma) * np.array([1.0, 1.0, np.sqrt(0.5)]))
+    else:
+        pixel = gtsam.noiseModel.Isotropic.Sigma(2, float(sigma))
     return pixel, gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(huber_k), pixel)
 
 
-def identify_pixel_sigma(residuals_px: np.ndarray, n_landmarks: int, n_frames: int) -> float:
+def identify_pixel_sigma(residuals_px: np.ndarray, n_landmarks: int, n_frames: int,
+                         dims: int = 2) -> float:
     """The pixel sigma (each axis) the residuals of a solve call for: ``sigma^2 = sum |r_i|^2 /
-    (2 N - 3 M - 6 T)`` over the ``N`` observations kept by the outlier gate (``|r_i|`` the
-    reprojection error in px; observations beyond ``outlier_px`` are outliers and leave the
-    model, here as in the solve), ``M`` landmarks and ``T`` frames: the residual degrees of
-    freedom of the tracks, counting every landmark's 3 and every pose's 6 as determined by them
-    (the IMU determines part of the poses, so this rule leans towards a larger sigma)."""
+    (d N - 3 M - 6 T)`` over the ``N`` observations kept by the outlier gate (``|r_i|`` the
+    reprojection error in px, :func:`_reprojection_errors`; observations beyond ``outlier_px``
+    are outliers and leave the model, here as in the solve), ``d`` the measurement's dimension
+    (2 for a pixel, 3 for a stereo ``[uL, uR, v]``), ``M`` landmarks and ``T`` frames: the
+    residual degrees of freedom of the tracks, counting every landmark's 3 and every pose's 6
+    as determined by them (the IMU determines part of the poses, so this rule leans towards a
+    larger sigma)."""
     r = np.asarray(residuals_px, dtype=float)
-    dof = 2 * r.size - 3 * int(n_landmarks) - 6 * int(n_frames)
+    dof = int(dims) * r.size - 3 * int(n_landmarks) - 6 * int(n_frames)
     if dof <= 0:
         raise EstimationError(f"{ESTIMATOR}: {r.size} observations cannot identify the pixel noise of "
                               f"{n_landmarks} landmarks and {n_frames} frames; give pixel_sigma")
@@ -299,7 +320,9 @@ def _camera_pose(values: gtsam.Values, frame: int, body_P_sensor: gtsam.Pose3) -
 def _triangulate(problem: InertialProblem, values: gtsam.Values, frames: np.ndarray, z: np.ndarray):
     s = problem.settings
     cams = [_camera_pose(values, int(f), problem.body_P_sensor) for f in frames]
-    return triangulate_track(cams, z, problem.calibration, problem.pixel_noise, s.min_parallax_deg,
+    z = np.asarray(z, dtype=float)[:, :2]  # the left camera's pixels (stereo: [uL, vL, ...])
+    noise = gtsam.noiseModel.Isotropic.Sigma(2, problem.pixel_sigma)  # a left pixel's
+    return triangulate_track(cams, z, problem.calibration, noise, s.min_parallax_deg,
                              s.max_landmark_distance, s.outlier_px)
 
 
@@ -423,7 +446,7 @@ def _reprojection(problem: InertialProblem, values: gtsam.Values, frame: int, tr
     q = _camera_pose(values, frame, problem.body_P_sensor).transformTo(values.atPoint3(L(track)))
     if q[2] <= 0:
         return np.inf
-    return float(np.hypot(*(problem.calibration.uncalibrate(q[:2] / q[2]) - z)))
+    return float(np.hypot(*(problem.calibration.uncalibrate(q[:2] / q[2]) - np.asarray(z)[:2])))
 
 
 def _frames_of(obs, rows: np.ndarray) -> np.ndarray:
@@ -431,6 +454,9 @@ def _frames_of(obs, rows: np.ndarray) -> np.ndarray:
 
 
 def _reprojection_errors(problem: InertialProblem, values: gtsam.Values, rows: np.ndarray) -> np.ndarray:
+    """Per observation of ``rows``, its reprojection error (px): ``|r|`` of a monocular pixel;
+    for a stereo one ``sqrt(r_uL^2 + r_uR^2 + 2 r_v^2)``, the norm its noise model whitens
+    (:func:`pixel_noise_models`, times sigma). Inf behind the camera."""
     obs = problem.drive.obs
     frames = _frames_of(obs, rows)
     out = np.empty(rows.size)
@@ -440,7 +466,13 @@ def _reprojection_errors(problem: InertialProblem, values: gtsam.Values, rows: n
         if q[2] <= 0:
             out[i] = np.inf
             continue
-        out[i] = np.hypot(*(problem.calibration.uncalibrate(q[:2] / q[2]) - obs.z[r]))
+        z = obs.z[r]
+        if problem.stereo is None:
+            out[i] = np.hypot(*(problem.calibration.uncalibrate(q[:2] / q[2]) - z))
+            continue
+        p = gtsam.StereoCamera(cam, problem.stereo).project(values.atPoint3(L(int(obs.track[r]))))
+        r_ul, r_ur, r_v = p.uL() - z[0], p.uR() - z[2], p.v() - 0.5 * (z[1] + z[3])
+        out[i] = np.sqrt(r_ul * r_ul + r_ur * r_ur + 2.0 * r_v * r_v)
     return out
 
 
@@ -521,10 +553,10 @@ def batch_solve(problem: InertialProblem, initial: Solution | None = None) -> So
     # again under the identified sigma while it moves by more than pixel_sigma_rtol).
     for _ in range(s.pixel_sigma_iterations if s.pixel_sigma is None else 0):
         sigma = identify_pixel_sigma(_reprojection_errors(problem, values, rows), kept_tracks.size,
-                                     problem.n_frames)
+                                     problem.n_frames, 2 if problem.stereo is None else 3)
         if abs(sigma / problem.pixel_sigma - 1.0) <= s.pixel_sigma_rtol:
             break
-        pixel, robust = pixel_noise_models(sigma, s.huber_k)
+        pixel, robust = pixel_noise_models(sigma, s.huber_k, problem.stereo is not None)
         problem = dataclasses.replace(problem, pixel_noise=pixel, robust_noise=robust, pixel_sigma=sigma)
         graph = _graph(problem, rows, anchors)
         values = _lm(problem, graph, values, "optimising under the identified pixel sigma")
@@ -544,7 +576,8 @@ def _states_only(values: gtsam.Values, n_frames: int) -> gtsam.Values:
 def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATOR) -> InertialSmootherResult:
     """The solution in vislam's convention, with marginal covariances (module docstring)."""
     if solution.pixel_sigma is not None and solution.pixel_sigma != problem.pixel_sigma:
-        pixel, robust = pixel_noise_models(solution.pixel_sigma, problem.settings.huber_k)
+        pixel, robust = pixel_noise_models(solution.pixel_sigma, problem.settings.huber_k,
+                                           problem.stereo is not None)
         problem = dataclasses.replace(problem, pixel_noise=pixel, robust_noise=robust,
                                       pixel_sigma=solution.pixel_sigma)
     drive, s = problem.drive, problem.settings

@@ -414,3 +414,36 @@ def test_an_indeterminate_cholesky_pass_is_run_again_with_qr(monkeypatch, synthe
                         lambda problem: (_ for _ in ()).throw(EstimationError("something else")))
     with pytest.raises(EstimationError, match="something else"):
         smooth(drive)
+
+
+def test_stereo_tracks_give_stereo_factors_and_a_consistent_estimate():
+    """A stereo drive: a GenericStereoFactor3D per observation ([uL, uR, v], v the rows' mean,
+    sigma / sqrt(2) on it), landmarks triangulated from the left pixels, the pixel sigma
+    identified over 3 dimensions; the estimate within its sigmas."""
+    import vislam.graph.inertial_smoother as ism
+    from vislam.eval.groundtruth import GroundTruth
+    from vislam.eval.imu_sim import simulate_imu
+    from vislam.eval.imu_sim_config import ImuSimConfig
+    from vislam.eval.inertial_truth import frame0_gauge
+    from vislam.eval.metrics import nees
+
+    drive, truth = simulate_imu(ImuSimConfig(camera="stereo", n_frames=71, seed=1))
+    problem = build_problem(drive)
+    assert problem.stereo is not None and problem.stereo.baseline() == pytest.approx(drive.calibration.baseline)
+    z = drive.obs.z[0]
+    factor = problem.projection(z, 0, int(drive.obs.track[0]), robust=False)
+    assert isinstance(factor, gtsam.GenericStereoFactor3D)
+    measured = factor.measured()
+    np.testing.assert_allclose([measured.uL(), measured.uR(), measured.v()],
+                               [z[0], z[2], 0.5 * (z[1] + z[3])])
+    np.testing.assert_allclose(problem.pixel_noise.sigmas(), problem.pixel_sigma * np.array([1, 1, np.sqrt(0.5)]))
+    with pytest.raises(EstimationError, match="cannot identify"):
+        ism.identify_pixel_sigma(np.ones(10), 10, 1, dims=3)  # 30 - 30 - 6 < 0
+    result = smooth(drive)
+    est = result.estimate
+    assert result.info["n_landmarks"] > 50
+    assert 0.8 < result.info["pixel_sigma"] < 1.2  # simulated at 1 px
+    gt = frame0_gauge(GroundTruth(np.arange(drive.n_frames), truth.frame_poses, source="sim"), est.poses[0])
+    err = pose_errors(est.poses, gt.poses)[1:]
+    assert np.mean(nees(err, est.pose_cov[1:])) < 14.45  # one drive's 95 % band
+    assert np.linalg.norm(err[:, :3], axis=1).max() < 0.02
