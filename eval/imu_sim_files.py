@@ -37,5 +37,6 @@ def write_imu_simulation(folder: str | Path, drive: InertialDrive, truth: ImuTru
     faults = {key: np.array(float(value)) for key, value, default in
               (("imu_time_offset", truth.imu_time_offset, 0.0),
                ("imu_noise_scale", truth.imu_noise_scale, 1.0)) if value != default}
-    save_npz_reproducible(folder / f"{drive.name}_landmarks.npz", {"landmarks": landmarks, **faults})
+    save_npz_reproducible(folder / f"{drive.name}_landmarks.npz",
+                          {"landmarks": landmarks, **faults})
     return path
