@@ -27,6 +27,18 @@ error is first order in dt). The biases are drawn at t = 0 (sigmas ``gyro_bias_s
 ``accel_bias_sigma``) and walk per sample, ``b(t_i+1) = b(t_i) + N(0, random_walk^2 dt)``; the
 white noise of a sample is that of the continuous density averaged over dt.
 
+Faults with a known answer. ``imu_time_offset`` S (s, positive when the IMU's stamps are late
+against the camera's): the sample stamped ``t_i`` holds what the IMU measured at the true time
+``t_i - S``, made by the formulas above with the trajectory evaluated at ``t_i - S`` (and
+``t_i - S + dt``); the sample's bias is still ``b(t_i)`` of its index (the biases are the
+sensor's own). The camera's stamps, the truth (at the camera's clock: ``imu_poses`` etc. at
+``imu_time``, the stamps) and everything else do not change; S = 0 evaluates at ``t_i`` itself,
+the drive unchanged to the byte. ``imu_noise_scale`` X: the white noise and the bias walks are
+drawn with X times ``noise``'s densities (the same draws, scaled), while the calibration keeps
+declaring ``noise`` (the data sheet); X = 1 multiplies nothing. Both are recorded in
+:class:`ImuTruth` (``imu_time_offset``, ``imu_noise_scale``), in the drive's ``source`` text
+when not the defaults, and in ``NAME_landmarks.npz`` (:mod:`eval.imu_sim_files`).
+
 Camera (every ``frame_stride`` IMU samples, so every frame is taken with a sample): an ideal
 pinhole through a ``cam_T_imu`` that is not the identity (camera z along the IMU's x, a few
 degrees of mounting rotation and a lever arm of centimetres (room) or a metre (car)).
@@ -39,6 +51,7 @@ a landmark: its id is the landmark's index, kept every time the landmark is seen
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,7 +60,7 @@ from vislam.ekf.camera import project, stereo_matrix
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.geometry import se3_inv, so3_exp, so3_log
 from vislam.ekf.imu_init import InitialState
-from vislam.ekf.inertial import InertialCalibration, InertialDrive
+from vislam.ekf.inertial import ImuNoise, InertialCalibration, InertialDrive
 from vislam.ekf.sequence import Observations
 from vislam.ekf.strapdown import N_ERROR, NavState
 from vislam.eval.imu_sim_config import ImuSimConfig
@@ -86,7 +99,10 @@ class ImuTruth:
     ``scene_landmarks`` (M, 3) every landmark of the scene, seen or not (the drive's
     ``track_id`` indexes it);
     ``gravity_world`` (3,) m/s^2; ``motion_start_s`` the end of the rest; ``trajectory`` the
-    analytic trajectory (evaluate it at any time)."""
+    analytic trajectory (evaluate it at any time). The faults made (module docstring):
+    ``imu_time_offset`` (s, the IMU's stamps late against the camera's: a sample stamped ``t``
+    holds the motion of ``trajectory`` at ``t - imu_time_offset``) and ``imu_noise_scale`` (the
+    true white noise and bias walks over the calibration's declared ones)."""
 
     scenario: str
     imu_time: np.ndarray
@@ -105,6 +121,8 @@ class ImuTruth:
     motion_start_s: float
     frame_stride: int
     trajectory: Trajectory
+    imu_time_offset: float = 0.0
+    imu_noise_scale: float = 1.0
 
     def frame_state(self, k: int) -> NavState:
         """The true :class:`ekf.strapdown.NavState` at camera frame ``k``."""
@@ -183,6 +201,17 @@ def interval_measurements(trajectory: Trajectory, t: np.ndarray, dt: float, grav
     return gyro, accel
 
 
+def _scaled_noise(noise: ImuNoise, scale: float) -> ImuNoise:
+    """The noise the samples are drawn with: ``noise``'s densities and walks times ``scale``
+    (``noise`` itself when 1, so nothing is multiplied)."""
+    if scale == 1.0:
+        return noise
+    return dataclasses.replace(
+        noise, **{key: getattr(noise, key) * scale for key in
+                  ("gyro_noise_density", "gyro_random_walk", "accel_noise_density",
+                   "accel_random_walk")})
+
+
 def _bias_walk(rng, n: int, sigma0: float, walk: float, dt: float, off: bool) -> np.ndarray:
     if off:
         return np.zeros((n, 3))
@@ -222,12 +251,14 @@ def simulate_imu(config: ImuSimConfig = ImuSimConfig()) -> tuple[InertialDrive, 
     t = np.arange(n) / config.imu_rate_hz
     dt = 1.0 / config.imu_rate_hz
     point = trajectory(t)
+    t_sensor = t - config.imu_time_offset if config.imu_time_offset else t
     if config.sampling == "instant":
-        w, f = imu_measurements(point, config.gravity)
+        sensed = point if t_sensor is t else trajectory(t_sensor)
+        w, f = imu_measurements(sensed, config.gravity)
     else:
-        w, f = interval_measurements(trajectory, t, dt, config.gravity)
+        w, f = interval_measurements(trajectory, t_sensor, dt, config.gravity)
     off = config.noise_free
-    nz = config.noise
+    nz = _scaled_noise(config.noise, config.imu_noise_scale)
     bg = _bias_walk(rng_bias, n, config.gyro_bias_sigma, nz.gyro_random_walk, dt, off)
     ba = _bias_walk(rng_bias, n, config.accel_bias_sigma, nz.accel_random_walk, dt, off)
     gyro, accel = w + bg, f + ba
@@ -270,12 +301,24 @@ def simulate_imu(config: ImuSimConfig = ImuSimConfig()) -> tuple[InertialDrive, 
                                 gravity=float(config.gravity))
     drive = InertialDrive(config.drive_name, t[frame_samples].copy(), imu, obs, int(ids.size),
                           calib, 0, ids.astype(np.int64), f"simulated: {config.scenario}, "
-                          f"{config.camera}, seed {config.seed}")
+                          f"{config.camera}, seed {config.seed}{_fault_text(config)}")
     truth = ImuTruth(
         scenario=config.scenario, imu_time=t, imu_poses=poses, imu_velocity=point.v,
         angular_rate=point.w, gyro_bias=bg, accel_bias=ba, frame_poses=poses[frame_samples],
         frame_velocity=point.v[frame_samples], frame_gyro_bias=bg[frame_samples],
         frame_accel_bias=ba[frame_samples], landmarks=landmarks[ids], scene_landmarks=landmarks,
         gravity_world=config.gravity * GRAVITY_DIRECTION, motion_start_s=float(config.rest_s),
-        frame_stride=stride, trajectory=trajectory)
+        frame_stride=stride, trajectory=trajectory, imu_time_offset=config.imu_time_offset,
+        imu_noise_scale=config.imu_noise_scale)
     return drive, truth
+
+
+def _fault_text(config: ImuSimConfig) -> str:
+    """The faults made, in words for the drive's ``source`` ("" for none)."""
+    text = ""
+    if config.imu_time_offset:
+        text += f", IMU stamps late by {config.imu_time_offset:.6g} s (imu_time_offset)"
+    if config.imu_noise_scale != 1.0:
+        text += (f", IMU noise {config.imu_noise_scale:.6g} times its declared densities "
+                 "(imu_noise_scale)")
+    return text

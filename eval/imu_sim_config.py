@@ -12,6 +12,7 @@ import numpy as np
 from vislam.ekf.errors import InputError
 from vislam.ekf.inertial import ACCEL_TURN_ON_BIAS_SIGMA, STANDARD_GRAVITY, ImuNoise
 from vislam.eval.imu_trajectories import DEFAULT_RAMP_S, SCENARIOS
+from vislam.eval.sim_config import check_time_offset
 
 #: Camera kinds the simulator makes: two pixel columns (monocular) or four (stereo).
 CAMERAS = ("mono", "stereo")
@@ -28,6 +29,9 @@ DEFAULT_LANDMARKS = {"room": 800, "handheld": 800, "road": 200}
 
 #: Longest simulated raw-IMU drive, camera frames (10 minutes at 20 Hz).
 MAX_IMU_SIM_FRAMES = 12000
+
+#: Largest ``imu_noise_scale``.
+MAX_IMU_NOISE_SCALE = 1000.0
 
 
 def _positive(name: str, value, top: float | None = None) -> None:
@@ -77,7 +81,13 @@ class ImuSimConfig:
     Landmarks: ``n_landmarks`` (room: on the walls, floor and ceiling; road: per 100 m of road,
     both sides; None: :data:`DEFAULT_LANDMARKS`), seen within ``[min_depth, max_range]`` m
     (``max_range`` None: the scenario's, 12 m in the room, 60 m on the road) and inside the
-    image."""
+    image.
+
+    Faults with a known answer (:mod:`eval.imu_sim`): ``imu_time_offset`` (s) the IMU's stamps
+    late against the camera's (a sample stamped ``t`` holds the motion at ``t - offset``; within
+    1 s and a tenth of the drive); ``imu_noise_scale`` the IMU's white noise and bias walks are
+    this many times ``noise``'s densities, which the drive's calibration still declares (an IMU
+    noisier than its data sheet; the initial bias sigmas are not scaled)."""
 
     seed: int = 0
     scene_seed: int | None = None
@@ -99,6 +109,8 @@ class ImuSimConfig:
     noise_free: bool = False
     sampling: str = "interval"
     name: str = ""
+    imu_time_offset: float = 0.0
+    imu_noise_scale: float = 1.0
 
     def __post_init__(self) -> None:
         _integer("seed", self.seed, 0, 2**63 - 1)
@@ -137,6 +149,10 @@ class ImuSimConfig:
         if not isinstance(self.noise_free, bool):
             raise InputError(f"imu simulation: noise_free must be true or false, "
                              f"got {self.noise_free!r}")
+        object.__setattr__(self, "imu_time_offset", check_time_offset(
+            "imu simulation", "imu_time_offset", self.imu_time_offset, self.duration_s))
+        _positive("imu_noise_scale", self.imu_noise_scale, MAX_IMU_NOISE_SCALE)
+        object.__setattr__(self, "imu_noise_scale", float(self.imu_noise_scale))
         if not isinstance(self.name, str):
             raise InputError(f"imu simulation: name must be a string, got {self.name!r}")
 

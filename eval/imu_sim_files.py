@@ -2,7 +2,8 @@
 file form, :mod:`eval.inertial_files`), ``DIR/groundtruth/NAME.csv`` (the true IMU poses,
 velocities and biases at the camera frames, ASL/OpenVINS csv, the simulator's world) and
 ``DIR/NAME_landmarks.npz`` (each track's true landmark, in the estimates' world: what
-``vislam bench`` scores the maps with)."""
+``vislam bench`` scores the maps with; a drive made with a fault also holds its true value,
+``imu_time_offset`` () s and ``imu_noise_scale`` (), each only when not the default)."""
 
 from __future__ import annotations
 
@@ -33,5 +34,9 @@ def write_imu_simulation(folder: str | Path, drive: InertialDrive, truth: ImuTru
     write_trajectory(inertial_truth_path(path), truth_trajectory(drive, truth))
     W = world_from_file(truth.frame_poses[0])
     landmarks = truth.landmarks @ W[:3, :3].T + W[:3, 3]
-    save_npz_reproducible(folder / f"{drive.name}_landmarks.npz", {"landmarks": landmarks})
+    faults = {key: np.array(float(value)) for key, value, default in
+              (("imu_time_offset", truth.imu_time_offset, 0.0),
+               ("imu_noise_scale", truth.imu_noise_scale, 1.0)) if value != default}
+    save_npz_reproducible(folder / f"{drive.name}_landmarks.npz",
+                          {"landmarks": landmarks, **faults})
     return path

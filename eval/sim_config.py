@@ -66,6 +66,22 @@ SCENARIO_DEFAULTS: dict[str, dict] = {
 }
 #: Largest file-extrinsic offset: translation (m) and rotation (rad) components.
 _MAX_OFFSET_M, _MAX_OFFSET_RAD = 100.0, 3.0
+#: Largest time offset of a motion stream against the camera (s); it must also be at most a
+#: tenth of the drive (TIME_OFFSET_SHARE of its duration).
+MAX_TIME_OFFSET_S = 1.0
+TIME_OFFSET_SHARE = 0.1
+
+
+def check_time_offset(what: str, key: str, value, duration_s: float) -> float:
+    """A stream's time offset (s) as a float: finite, within MAX_TIME_OFFSET_S and a tenth of
+    the drive's ``duration_s``; InputError naming ``key`` otherwise."""
+    top = min(MAX_TIME_OFFSET_S, TIME_OFFSET_SHARE * duration_s)
+    if (isinstance(value, bool) or not isinstance(value, numbers.Real)
+            or not np.isfinite(value) or abs(value) > top):
+        raise InputError(f"{what}: {key} must be a number of seconds within +-{top:g} (at most "
+                         f"{MAX_TIME_OFFSET_S:g} s and a tenth of the {duration_s:g} s drive), "
+                         f"got {value!r}")
+    return float(value)
 
 
 @dataclass(frozen=True)
@@ -137,6 +153,12 @@ class SimConfig:
     #: loop: the share of the loop driven a second time at the end of the drive (the drive is
     #: ``1 + loop_overlap`` laps).
     loop_overlap: float = 0.15
+    #: Time offsets (s) of the linear-velocity and the angular-velocity streams against the
+    #: camera, positive when the stream's stamps are late: the sample stamped ``t_k`` holds the
+    #: motion at ``t_k - offset`` (eval.simulate's module docstring). Within
+    #: MAX_TIME_OFFSET_S and a tenth of the drive.
+    velocity_time_offset: float = 0.0
+    gyro_time_offset: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2**63:
@@ -230,6 +252,10 @@ class SimConfig:
                 f"{self.file_extrinsic_offset!r}"
             )
         object.__setattr__(self, "file_extrinsic_offset", tuple(float(x) for x in offset))
+        duration = (self.n_frames - 1) / self.rate_hz
+        for key in ("velocity_time_offset", "gyro_time_offset"):
+            object.__setattr__(self, key, check_time_offset("simulation", key, getattr(self, key),
+                                                            duration))
         self._check_scenario()
 
     def _check_scenario(self) -> None:

@@ -35,7 +35,14 @@ def smooth_profile(rng, t_end: float, spacing: float, draw) -> PchipInterpolator
 
 def instantaneous_twists(config: SimConfig, rng, t: np.ndarray) -> np.ndarray:
     """Body twists (n, 6) at times ``t``: forward speed, Euler-kinematics angular velocity."""
-    span = float(t[-1]) + 1.0
+    return twist_profile(config, rng, float(t[-1]) + 1.0)(t)
+
+
+def twist_profile(config: SimConfig, rng, span: float):
+    """The road's motion as a function of time: draws the random knots of speed, yaw rate and
+    pitch up to ``span`` s (in :func:`instantaneous_twists`'s order) and returns ``twists(t)``,
+    the body twists (n, 6) at any times ``t`` (the PCHIP curves, extended beyond their knots
+    by their end pieces)."""
     speed = smooth_profile(
         rng, span, config.knot_spacing_s, lambda n: rng.uniform(config.speed_min, config.speed_max, n)
     )
@@ -53,13 +60,18 @@ def instantaneous_twists(config: SimConfig, rng, t: np.ndarray) -> np.ndarray:
         return values
 
     pitch = smooth_profile(rng, span, 2.0 * config.knot_spacing_s, pitch_knots)
-    theta, dtheta, dpsi = pitch(t), pitch.derivative()(t), yaw_rate(t)
-    u = np.zeros((t.size, 6))
-    u[:, 0] = speed(t)
-    u[:, 3] = -dpsi * np.sin(theta)
-    u[:, 4] = dtheta
-    u[:, 5] = dpsi * np.cos(theta)
-    return u
+    dpitch = pitch.derivative()
+
+    def twists(t: np.ndarray) -> np.ndarray:
+        theta, dtheta, dpsi = pitch(t), dpitch(t), yaw_rate(t)
+        u = np.zeros((t.size, 6))
+        u[:, 0] = speed(t)
+        u[:, 3] = -dpsi * np.sin(theta)
+        u[:, 4] = dtheta
+        u[:, 5] = dpsi * np.cos(theta)
+        return u
+
+    return twists
 
 
 def integrate_mean_pairing(twists: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -193,7 +205,8 @@ def loop_curvature(s: np.ndarray, lap: float) -> np.ndarray:
 
 
 def loop_drive(config: SimConfig, rng, t: np.ndarray, n_frames: int):
-    """Twists (n, 6), poses (n, 4, 4) and the lap's length (m) of a car driving a flat closed
+    """Twists (n, 6), poses (n, 4, 4), the lap's length (m) and the twists as a function of
+    time (any times, for streams stamped off the camera's) of a car driving a flat closed
     loop (:func:`loop_curvature`) at a smooth random speed in ``[speed_min, speed_max]``: the
     lap is sized so that the first ``n_frames`` frames drive ``1 + loop_overlap`` laps, so the
     drive comes back to its start and drives the start again. Yaw rate is curvature times
@@ -209,7 +222,19 @@ def loop_drive(config: SimConfig, rng, t: np.ndarray, n_frames: int):
     u = np.zeros((t.size, 6))
     u[:, 0] = v
     u[:, 5] = loop_curvature(s, lap) * v
-    return u, integrate_mean_pairing(u, dt), lap
+
+    def twists(tq: np.ndarray) -> np.ndarray:
+        """The twists at any times: the arc length by the same trapezoid from the grid time
+        before (the first or last grid time outside the grid), so the grid's own are u."""
+        vq = speed(tq)
+        k = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, t.size - 1)
+        sq = s[k] + 0.5 * (v[k] + vq) * (tq - t[k])
+        out = np.zeros((tq.size, 6))
+        out[:, 0] = vq
+        out[:, 5] = loop_curvature(sq, lap) * vq
+        return out
+
+    return u, integrate_mean_pairing(u, dt), lap, twists
 
 
 def nearby_points(points: np.ndarray, positions: np.ndarray, radius: float):
@@ -398,6 +423,32 @@ def velocity_samples(u_all: np.ndarray, T: int, pairing: str) -> np.ndarray:
     out = np.empty((T, 6))
     out[0] = u_all[0]
     out[1:] = w[: T - 1]
+    return out
+
+
+def interpolated_twists(t: np.ndarray, u: np.ndarray):
+    """The twists of a drive made step by step (the room) at any times: linear between its
+    samples ``u`` at times ``t`` (the platform's accelerations are constant over a step), the
+    first and last sample held outside them."""
+
+    def twists(tq: np.ndarray) -> np.ndarray:
+        return np.stack([np.interp(tq, t, u[:, j]) for j in range(u.shape[1])], axis=1)
+
+    return twists
+
+
+def offset_samples(u_all: np.ndarray, t_all: np.ndarray, twists, T: int, pairing: str,
+                   velocity_offset: float, gyro_offset: float) -> np.ndarray:
+    """The noise-free samples (T, 6) of streams stamped late by the offsets (s): the linear part
+    of :func:`velocity_samples` of the motion at ``t_all - velocity_offset``, the angular part
+    of that at ``t_all - gyro_offset`` (``twists(t)`` the motion at any times); a zero offset
+    takes ``u_all`` itself, so the drive is the same to the byte."""
+    out = velocity_samples(u_all, T, pairing).copy()
+    n = T + 1  # the samples velocity_samples reads
+    for cols, offset in ((slice(0, 3), velocity_offset), (slice(3, 6), gyro_offset)):
+        if offset:
+            shifted = twists(t_all[:n] - offset)
+            out[:, cols] = velocity_samples(shifted, T, pairing)[:, cols]
     return out
 
 

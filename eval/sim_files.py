@@ -38,7 +38,9 @@ def write_simulation(
     * ``landmarks``: ``out_dir/NAME_landmarks.npz`` with ``landmarks`` (n_tracks, 3) the true
       world position per track index (world = IMU at frame 0), ``track_landmark``
       (n_tracks,), ``landmark_points`` (n_landmarks, 3), ``poses`` (T, 4, 4) true world_T_imu
-      and ``true_velocities`` (T, 6);
+      and ``true_velocities`` (T, 6); a drive with a stream's time offset also holds it, as
+      ``velocity_time_offset`` / ``gyro_time_offset`` () in seconds (absent when zero, so the
+      file of a drive without one is unchanged);
     * ``model``: ``out_dir/NAME_model.toml``, the true model of the drive (ekf.model, a
       ``[model]`` table and the file's extrinsic under ``[file]``).
 
@@ -79,6 +81,9 @@ def write_simulation(
             "landmark_points": result.landmark_points,
             "poses": result.poses,
             "true_velocities": result.true_velocities,
+            **{key: np.array(float(getattr(result.config, key)))
+               for key in ("velocity_time_offset", "gyro_time_offset")
+               if getattr(result.config, key, 0.0)},
         },
     )
     model_text = result.model.to_toml().encode("utf-8")

@@ -89,6 +89,19 @@ drx, dry, drz]`` (m, rad) then adds ``dt`` to the translation and turns the rota
 file's extrinsic (what the loader reads), ``SimResult.true_cam_T_imu`` the true one, and
 ``SimResult.model`` (written as ``NAME_model.toml``) the true model of the drive.
 
+Time offsets (``velocity_time_offset``, ``gyro_time_offset``, s; positive when the stream's
+stamps are late against the camera's). The sample stamped ``t_k`` holds what the sensor measured
+at the true time ``t_k - offset``: the linear (angular) part of the velocity samples is made as
+above, under the same pairing, from the instantaneous twists of the same motion evaluated at
+``t_all - offset`` instead of ``t_all``: the road's PCHIP curves evaluated there (extended by
+their end pieces before time 0); the loop's speed curve there and its arc length by the same
+trapezoid from the grid time before; the room's step-by-step twists interpolated linearly (its
+accelerations are constant over a step; at rest before time 0, and driven on past the last frame
+for a negative offset). The trajectory, the camera's stamps and ``true_velocities`` (the truth at
+the stamps) do not change; an offset of zero uses the unshifted twists themselves, so the drive
+is the same to the byte. The offsets are recorded in ``SimResult.config``, in the true model's
+``source`` and in ``NAME_landmarks.npz`` (eval.sim_files).
+
 ``noise_free=True`` zeroes every noise (pixels, velocities, gyro bias). The random streams of
 the trajectory, the landmarks, the tracks, the velocity noise and the pixel noise are separate
 children of one ``SeedSequence(seed)``, so for one seed the noise-free drive is the ground truth
@@ -116,14 +129,16 @@ from vislam.eval.sim_config import (
 )
 from vislam.eval.sim_drawing import (
     LOOKAHEAD_M,
-    instantaneous_twists,
     integrate_mean_pairing,
+    interpolated_twists,
     loop_drive,
     nearby_points,
     observe_landmarks,
+    offset_samples,
     place_landmarks,
     room_drive,
     room_landmarks,
+    twist_profile,
     velocity_noise,
     velocity_samples,
 )
@@ -142,7 +157,9 @@ class SimResult:
     ``sequence`` the measurements, as the loader builds them from the written file;
     ``poses`` (T, 4, 4) true ``world_T_imu`` (world = IMU at frame 0);
     ``landmarks`` (n_tracks, 3) true world position of the landmark of each track index;
-    ``true_velocities`` (T, 6) noise-free instantaneous body twists ``[v; w]`` at each sample;
+    ``true_velocities`` (T, 6) noise-free instantaneous body twists ``[v; w]`` at each sample
+    (the truth at the camera's stamps: with a time offset the stream's noise-free samples are
+    those of the shifted times, module docstring);
     ``track_landmark`` (n_tracks,) which landmark each track observes;
     ``landmark_points`` (n_landmarks, 3) every landmark placed;
     ``config`` the settings that made it;
@@ -217,6 +234,10 @@ def true_model(result: SimResult):
     if not config.noise_free and any(b != 0.0 for b in config.gyro_bias):
         bias = tuple(config.gyro_bias)
     seed_text = f"seed {config.seed}, {config.n_frames} frames"
+    for what, key in (("linear-velocity", "velocity_time_offset"),
+                      ("angular-velocity", "gyro_time_offset")):
+        if getattr(config, key):  # not a model key yet: the true value in words
+            seed_text += f", {what} stamps late by {getattr(config, key):.6g} s ({key})"
     return Model(
         velocity_sigma=sig(config.velocity_sigma),
         gyro_sigma=sig(config.gyro_sigma),
@@ -254,16 +275,21 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
     T = config.n_frames
     road_z = float(se3_inv(KITTI_CAM_T_IMU)[2, 3]) - KITTI_CAMERA_HEIGHT
     candidates, same_track = None, config.scenario != "road"
+    # A stream stamped early (negative offset) reads the motion up to |offset| past the last
+    # frame: the room's step-by-step drive goes on that far (its first T + 1 steps unchanged).
+    n_late = int(np.ceil(max(0.0, -config.velocity_time_offset, -config.gyro_time_offset) / dt))
     if config.scenario == "room":
         t_all = np.arange(T + 1) * dt
-        u_all, poses_all = room_drive(config, rng_drive, T + 1, dt)
+        u_long, poses_long = room_drive(config, rng_drive, T + 1 + n_late, dt)
+        twists = interpolated_twists(np.arange(T + 1 + n_late) * dt, u_long)
+        u_all, poses_all = u_long[: T + 1], poses_long[: T + 1]
         points = room_landmarks(config, rng_landmarks, float(se3_inv(KITTI_CAM_T_IMU)[2, 3]))
         point_arc = np.zeros(points.shape[0])
         every = np.arange(points.shape[0])
         candidates = lambda k: every  # noqa: E731 (a room: every landmark may be in view)
     elif config.scenario == "loop":
         t_all = np.arange(T + 1) * dt
-        u_all, poses_all, lap = loop_drive(config, rng_drive, t_all, T)
+        u_all, poses_all, lap, twists = loop_drive(config, rng_drive, t_all, T)
         pos = poses_all[:, :3, 3]
         arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))])
         one_lap = poses_all[: max(int(np.searchsorted(arc, lap)), 2)]
@@ -275,12 +301,15 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
         n_extra = int(np.ceil((LOOKAHEAD_M + config.max_depth) / config.speed_min * config.rate_hz))
         n_all = config.n_frames + n_extra
         t_all = np.arange(n_all) * dt
-        u_all = instantaneous_twists(config, rng_drive, t_all)
+        twists = twist_profile(config, rng_drive, float(t_all[-1]) + 1.0)
+        u_all = twists(t_all)
         poses_all = integrate_mean_pairing(u_all, np.full(n_all - 1, dt))
         points, point_arc = place_landmarks(config, rng_landmarks, poses_all, road_z)
 
     poses, timestamps = poses_all[:T], t_all[:T]
     u_true = velocity_samples(u_all, T, config.velocity_pairing)
+    u_stream = offset_samples(u_all, t_all, twists, T, config.velocity_pairing,
+                              config.velocity_time_offset, config.gyro_time_offset)
     true_cam_T_imu = KITTI_CAM_T_IMU.copy()
     calib = Calibration(K=KITTI_K.copy(), baseline=KITTI_BASELINE, cam_T_imu=true_cam_T_imu)
     repeat_frames = (rng_events.random(T) < config.repeat_event_rate) & (np.arange(T) >= 2)
@@ -292,7 +321,7 @@ def simulate(config: SimConfig = DEFAULT_SIM) -> SimResult:
                              cam_T_imu=file_extrinsic(config, true_cam_T_imu))
 
     noise = velocity_noise(config, rng_velocity, T)
-    u_meas = u_true + noise
+    u_meas = u_stream + noise
 
     n_tracks = int(track_landmark.size)
     sequence = Sequence(

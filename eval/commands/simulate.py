@@ -6,7 +6,9 @@ the left camera with time), ``OUT/NAME_landmarks.npz`` (true landmarks, poses, v
 always give the same bytes. Faults a model identification must find: per-axis velocity noise
 (``--velocity-sigma 0.05,0.04,0.03``), a gyro bias, the velocity pairing of the samples, and a
 wrong extrinsic in the file (``--file-extrinsic-fault kitti``, ``--file-extrinsic-offset``),
-and velocity errors that drift in time (``--velocity-correlation``).
+velocity errors that drift in time (``--velocity-correlation``), and streams stamped late against
+the camera (``--velocity-time-offset``, ``--gyro-time-offset``; with ``--imu``:
+``--imu-time-offset``, and an IMU noisier than its data sheet, ``--imu-noise-scale``).
 """
 
 from __future__ import annotations
@@ -167,6 +169,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="add this to the file's cam_T_imu: translation (m) and rotation vector (rad, "
         "applied on the left) (default 0)",
     )
+    parser.add_argument(
+        "--velocity-time-offset", type=float, metavar="S", default=d.velocity_time_offset,
+        help="the linear-velocity stream's stamps late against the camera's by S seconds (the "
+        "sample stamped t holds the motion at t - S; negative: early); within 1 s and a tenth "
+        "of the drive (default %(default)s)",
+    )
+    parser.add_argument(
+        "--gyro-time-offset", type=float, metavar="S", default=d.gyro_time_offset,
+        help="the same for the angular-velocity stream (default %(default)s)",
+    )
+    parser.add_argument(
+        "--imu-time-offset", type=float, metavar="S", default=None,
+        help="--imu: the IMU's stamps late against the camera's by S seconds (the sample "
+        "stamped t holds the motion at t - S); within 1 s and a tenth of the drive (default 0)",
+    )
+    parser.add_argument(
+        "--imu-noise-scale", type=float, metavar="X", default=None,
+        help="--imu: the IMU's white noise and bias walks are X times the data sheet's "
+        "densities, which the file still declares (an IMU noisier than its sheet; default 1)",
+    )
 
 
 def config_from_args(args: argparse.Namespace) -> SimConfig:
@@ -202,6 +224,9 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
         pixel_correlation=getattr(args, "pixel_correlation", DEFAULT_SIM.pixel_correlation),
         velocity_correlation=getattr(args, "velocity_correlation",
                                      DEFAULT_SIM.velocity_correlation),
+        velocity_time_offset=getattr(args, "velocity_time_offset",
+                                     DEFAULT_SIM.velocity_time_offset),
+        gyro_time_offset=getattr(args, "gyro_time_offset", DEFAULT_SIM.gyro_time_offset),
     )
 
 
@@ -270,8 +295,10 @@ def run(args: argparse.Namespace) -> int:
         from vislam.eval.commands.simulate_imu import run_imu
 
         return run_imu(args, _defaults(), check_name)
-    if getattr(args, "camera", None) is not None:
-        raise InputError("--camera: a setting of raw-IMU simulations; add --imu")
+    for dest in ("camera", "imu_time_offset", "imu_noise_scale"):
+        if getattr(args, dest, None) is not None:
+            raise InputError(f"--{dest.replace('_', '-')}: a setting of raw-IMU simulations; "
+                             "add --imu")
     if args.scenario not in SIM_SCENARIOS:
         raise InputError(f"--scenario {args.scenario}: a raw-IMU scenario; add --imu, or choose "
                          f"one of {', '.join(SIM_SCENARIOS)}")

@@ -16,7 +16,8 @@ from vislam.eval.imu_trajectories import SCENARIOS
 #: The velocity-drive flags that mean nothing to a raw-IMU simulation (refused with --imu).
 VELOCITY_ONLY = ("velocity_sigma", "gyro_sigma", "gyro_bias", "landmark_density", "repeat_event_rate",
                  "velocity_pairing", "file_extrinsic_fault", "file_extrinsic_offset", "radial_k1",
-                 "pixel_correlation", "velocity_correlation")
+                 "pixel_correlation", "velocity_correlation", "velocity_time_offset",
+                 "gyro_time_offset")
 
 
 def imu_config(args: argparse.Namespace, parser_defaults: dict) -> tuple[ImuSimConfig, str]:
@@ -25,7 +26,8 @@ def imu_config(args: argparse.Namespace, parser_defaults: dict) -> tuple[ImuSimC
     for dest in VELOCITY_ONLY:
         if getattr(args, dest, None) != parser_defaults.get(dest):
             raise InputError(f"--{dest.replace('_', '-')}: a setting of velocity drives; "
-                             "--imu simulates a raw IMU (its noise is EuRoC's data sheet)")
+                             "--imu simulates a raw IMU (its noise: EuRoC's data sheet, "
+                             "--imu-noise-scale)")
     if args.scenario not in SCENARIOS:
         raise InputError(f"--scenario {args.scenario}: --imu simulates {', '.join(SCENARIOS)}")
     camera = args.camera or "mono"
@@ -35,6 +37,10 @@ def imu_config(args: argparse.Namespace, parser_defaults: dict) -> tuple[ImuSimC
     config = dataclasses.replace(d, seed=args.seed, scenario=args.scenario, camera=camera,
                                  n_frames=frames, pixel_sigma=args.pixel_sigma,
                                  noise_free=args.noise_free)
+    faults = {key: getattr(args, key) for key in ("imu_time_offset", "imu_noise_scale")
+              if getattr(args, key, None) is not None}
+    if faults:  # checked where they are made: InputError naming the setting
+        config = dataclasses.replace(config, **faults)
     return config, name
 
 
@@ -62,6 +68,9 @@ def run_imu(args: argparse.Namespace, parser_defaults: dict, check_name) -> int:
           f"({duration:.1f} s, at rest for the first {truth.motion_start_s:.1f} s), "
           f"{drive.n_frames} frames, {drive.n_tracks} {config.camera} tracks, {len(drive.obs)} "
           f"observations, in {sim_s:.2f} s")
+    if truth.imu_time_offset or truth.imu_noise_scale != 1.0:
+        print(f"faults made: IMU stamps late by {truth.imu_time_offset:g} s, IMU noise "
+              f"{truth.imu_noise_scale:g} times the declared densities")
     for rel in outputs(name):
         print(f"wrote {Path(args.out) / rel}")
     return 0
