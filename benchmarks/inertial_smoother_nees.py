@@ -2,9 +2,9 @@
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/inertial_smoother_nees.py
         [--runs 50] [--frames 201] [--scenarios room,handheld,road] [--first-seed 0]
+        [--camera mono|stereo]
 
-Each run is a drive of :func:`eval.imu_sim.simulate_imu` (monocular: the smoother takes the left
-camera's tracks only) with its own seed (trajectory, landmarks, biases and noise), solved by
+Each run is a drive of :func:`eval.imu_sim.simulate_imu` (``--camera`` mono or stereo) with its own seed (trajectory, landmarks, biases and noise), solved by
 :func:`graph.inertial_smoother.smooth` with the data sheet's noise and the pixel sigma identified.
 Its pose NEES against the truth in the estimate's gauge (:func:`eval.inertial_truth.frame0_gauge`:
 yaw and position of frame 0, which the estimate's covariance rightly leaves out) is averaged over
@@ -34,9 +34,9 @@ from vislam.eval.metrics import ate_rmse, pose_errors  # noqa: E402
 from vislam.graph.inertial_smoother import smooth  # noqa: E402
 
 
-def run_once(scenario: str, seed: int, frames: int) -> dict:
+def run_once(scenario: str, seed: int, frames: int, camera: str = "mono") -> dict:
     """One simulated drive solved by the smoother: its NEES parts and ATE against its sigmas."""
-    drive, truth = simulate_imu(ImuSimConfig(scenario=scenario, camera="mono", seed=seed,
+    drive, truth = simulate_imu(ImuSimConfig(scenario=scenario, camera=camera, seed=seed,
                                              n_frames=frames))
     start = time.process_time()
     est = smooth(drive).estimate
@@ -54,12 +54,12 @@ def run_once(scenario: str, seed: int, frames: int) -> dict:
             "ate": ate_rmse(est.poses, gt.poses, "yaw"), "sigma": sigma, "cpu": cpu}
 
 
-def study(scenario: str, runs: int, frames: int, first_seed: int = 0) -> dict:
+def study(scenario: str, runs: int, frames: int, first_seed: int = 0, camera: str = "mono") -> dict:
     """ANEES and the rest over ``runs`` seeds from ``first_seed``."""
-    rows = [run_once(scenario, first_seed + i, frames) for i in range(runs)]
+    rows = [run_once(scenario, first_seed + i, frames, camera) for i in range(runs)]
     lo, hi = chi2_bounds(runs, 6)
     anees = float(np.mean([r["nees"] for r in rows]))
-    return {"scenario": scenario, "runs": runs, "frames": frames, "anees": anees, "bounds": (lo, hi),
+    return {"scenario": scenario, "camera": camera, "runs": runs, "frames": frames, "anees": anees, "bounds": (lo, hi),
             "inside": lo <= anees <= hi,
             "trans": float(np.mean([r["trans"] for r in rows])),
             "rot": float(np.mean([r["rot"] for r in rows])),
@@ -74,11 +74,12 @@ def main(argv=None) -> None:
     ap.add_argument("--frames", type=int, default=201)
     ap.add_argument("--scenarios", default="room,handheld,road")
     ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--camera", choices=("mono", "stereo"), default="mono")
     args = ap.parse_args(argv)
     print(f"{'scenario':<9} {'runs':>4} {'frames':>6} {'ANEES':>7} {'95% bounds':>15} "
           f"{'trans':>6} {'rot':>6} {'ATE m':>8} {'ATE<=3sd':>8} {'CPU s/run':>9}")
     for scenario in args.scenarios.split(","):
-        r = study(scenario, args.runs, args.frames, args.first_seed)
+        r = study(scenario, args.runs, args.frames, args.first_seed, args.camera)
         lo, hi = r["bounds"]
         print(f"{scenario:<9} {r['runs']:>4} {r['frames']:>6} {r['anees']:>7.2f} "
               f"[{lo:5.2f}, {hi:5.2f}]{'' if r['inside'] else ' !':<2} {r['trans']:>6.2f} "
