@@ -81,7 +81,6 @@ exact to first order and checked both ways in the tests.
 from __future__ import annotations
 
 import numpy as np
-from vislam.ekf.errors import EstimationError
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.geometry import hat, so3_left_jacobian_inv, so3_log
 from vislam.ekf.inertial import ImuNoise
@@ -95,6 +94,7 @@ from vislam.ekf.strapdown import (
     VEL,
     NavState,
     exp_and_right_jacobian,
+    held_pieces,
     step,
 )
 
@@ -210,20 +210,10 @@ def propagate(state: NavState, imu: ImuSamples, t0: float, t1: float, g_world: n
     :func:`ekf.strapdown.integrate` takes them: the first at or before ``t0``, each held until
     the next one or ``t1``): ``(state, Phi, Qc)``, the accumulated transition and noise (RI-5).
     EstimationError when no sample is at or before ``t0``."""
-    time = np.asarray(imu.time, dtype=float)
-    if time.size == 0 or time[0] > t0:
-        first = "none" if time.size == 0 else f"the first at {time[0]:.6f} s"
-        raise EstimationError(f"invariant propagation: no IMU sample at or before t={t0:.6f} s "
-                              f"({first})")
-    ends = np.append(time[1:], t1)
     Phi = np.eye(N_CORE)
     Qc = np.zeros((N_CORE, N_CORE))
     F = np.eye(N_CORE)
-    for j in range(time.size):
-        start, end = max(time[j], t0), min(ends[j], t1)
-        dt = float(end - start)
-        if dt <= 0:
-            continue
+    for j, dt in held_pieces(imu.time, t0, t1):
         Jr = exp_and_right_jacobian((imu.gyro[j] - state.bg) * dt)[1]
         R_before = state.R
         state = step(state, imu.gyro[j], imu.accel[j], dt, g_world)

@@ -180,9 +180,26 @@ def integrate(state: NavState, P: np.ndarray | None, imu: ImuSamples, t0: float,
     """The state (and covariance ``P`` (15, 15), when given) carried from ``t0`` to ``t1``
     over the samples ``imu``: the first sample at or before ``t0`` (as
     :meth:`ekf.inertial.InertialDrive.imu_between` gives them), each held until the next one
-    or ``t1``. ``noise`` is needed with ``P``. EstimationError when no sample is at or before
-    ``t0``."""
+    or ``t1`` (:func:`held_pieces`). ``noise`` is needed with ``P``. EstimationError when no
+    sample is at or before ``t0``."""
+    state, P, _ = _carry(state, P, imu, t0, t1, g_world, noise, transition=False)
+    return state, P
+
+
+def integrate_with_transition(state: NavState, P: np.ndarray, imu: ImuSamples, t0: float,
+                              t1: float, g_world: np.ndarray, noise: ImuNoise
+                              ) -> tuple[NavState, np.ndarray, np.ndarray]:
+    """:func:`integrate` with the covariance, and the interval's transition ``Phi = F_n ... F_1``
+    (15, 15) beside it (the raw-IMU EKFs move their cross-covariances by it once per frame:
+    :mod:`ekf.imu_propagation`)."""
+    return _carry(state, P, imu, t0, t1, g_world, noise, transition=True)
+
+
+def _carry(state: NavState, P: np.ndarray | None, imu: ImuSamples, t0: float, t1: float,
+           g_world: np.ndarray, noise: ImuNoise | None, transition: bool
+           ) -> tuple[NavState, np.ndarray | None, np.ndarray | None]:
     R, v, p, bg, ba = state.R, state.v, state.p, state.bg, state.ba
+    Phi = np.eye(N_ERROR) if transition else None
     q_cache: dict[float, np.ndarray] = {}
     sg2 = 0.0 if noise is None else noise.gyro_noise_density ** 2
     for j, dt in held_pieces(imu.time, t0, t1):
@@ -196,7 +213,9 @@ def integrate(state: NavState, P: np.ndarray | None, imu: ImuSamples, t0: float,
                 Q = q_cache[dt] = _noise_without_rotation(dt, noise)
             P = F @ P @ F.T + Q
             P[ROT, ROT] += sg2 * dt * (Jr @ Jr.T)
+            if transition:
+                Phi = F @ Phi
         p = p + v * dt + 0.5 * dt * dt * acc
         v = v + acc * dt
         R = R @ dR
-    return NavState(R, v, p, bg, ba), P
+    return NavState(R, v, p, bg, ba), P, Phi
