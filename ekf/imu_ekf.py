@@ -263,15 +263,8 @@ class ImuEkf:
         return self.map_mean.copy(), self.map_cov.copy()
 
     def info(self) -> dict:
-        init = self.initial
         return {
-            "initialisation": init.source,
-            "initial_time_s": init.time,
-            "rest_s": None if init.rest is None else [init.rest.start, init.rest.end],
-            "world_frame": "gravity-aligned, z up",
-            "final_velocity": self.x.v.tolist(),
-            "final_gyro_bias": self.x.bg.tolist(),
-            "final_accel_bias": self.x.ba.tolist(),
+            **self.initial.info(self.x),
             "landmarks": "anchored inverse depth",
             "monocular_depth_prior": {"min_depth_m": self.depth_prior.min_depth,
                                       "rho": self.depth_prior.rho,

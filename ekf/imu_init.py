@@ -91,6 +91,19 @@ class InitialState:
     source: str = "given"
     rest: Rest | None = None
 
+    def info(self, now: NavState) -> dict:
+        """A raw-IMU estimator's ``info`` entries on how it started and where it ended
+        (``now``: its state after the last frame)."""
+        return {
+            "initialisation": self.source,
+            "initial_time_s": self.time,
+            "rest_s": None if self.rest is None else [self.rest.start, self.rest.end],
+            "world_frame": "gravity-aligned, z up",
+            "final_velocity": now.v.tolist(),
+            "final_gyro_bias": now.bg.tolist(),
+            "final_accel_bias": now.ba.tolist(),
+        }
+
 
 def detect_rest(imu: ImuSamples, config: RestConfig = RestConfig(), start: float | None = None
                 ) -> Rest:

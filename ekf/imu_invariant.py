@@ -313,15 +313,8 @@ class ImuInvariantEKF:
         return self.map_mean.copy(), self.map_cov.copy()
 
     def info(self) -> dict:
-        init = self.initial_used
         return {
-            "initialisation": init.source,
-            "initial_time_s": init.time,
-            "rest_s": None if init.rest is None else [init.rest.start, init.rest.end],
-            "world_frame": "gravity-aligned, z up",
-            "final_velocity": self.x.v.tolist(),
-            "final_gyro_bias": self.x.bg.tolist(),
-            "final_accel_bias": self.x.ba.tolist(),
+            **self.initial_used.info(self.x),
             "scheme": "right-invariant EKF on SE_2+K(3), biases beside the group (imperfect "
                       "IEKF); strapdown mean per sample; inverse-depth landmarks join the group",
             **{k: int(v) for k, v in self.counts.items()},

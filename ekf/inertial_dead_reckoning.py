@@ -97,7 +97,7 @@ def run_inertial_dead_reckoning(drive: InertialDrive, initial: InitialState | No
     start = _time.perf_counter()
     track = strapdown_frames(drive, initial, rest)
     elapsed = _time.perf_counter() - start
-    est = Estimate.empty("imu-dead-reckoning", track.timestamps, drive.n_tracks)
+    est = Estimate.empty("dead-reckoning-imu", track.timestamps, drive.n_tracks)  # its registry name
     est.poses = track.poses
     est.pose_cov = track.pose_cov()
     est.step_time_s = np.full(track.timestamps.size, elapsed / track.timestamps.size)
@@ -105,14 +105,7 @@ def run_inertial_dead_reckoning(drive: InertialDrive, initial: InitialState | No
     est.info = {
         "numerical_rejections": 0,
         "numerical_rejection_frames": [],
-        "initialisation": track.initial.source,
-        "initial_time_s": track.initial.time,
-        "rest_s": None if track.initial.rest is None else [track.initial.rest.start,
-                                                            track.initial.rest.end],
-        "world_frame": "gravity-aligned, z up",
-        "final_velocity": last.v.tolist(),
-        "final_gyro_bias": last.bg.tolist(),
-        "final_accel_bias": last.ba.tolist(),
+        **track.initial.info(last),
         "scheme": "strapdown: exact SO(3) exponential per sample, second-order position",
     }
     est.check_finite()
