@@ -12,7 +12,6 @@ import pytest
 
 from vislam.ekf.errors import InputError
 from vislam.ekf.estimate import Estimate
-from vislam.ekf.geometry import se3_exp
 from vislam.eval.cli import main
 from vislam.eval.loader import (
     load_sequence,
@@ -24,28 +23,9 @@ from vislam.eval.loader import (
 )
 from vislam.eval.simulate import SimConfig, simulate
 from tests.sequence_asserts import assert_same_sequence
+from tests.test_loader import M, T  # the size of that drive
+from tests.test_loader import valid_arrays as dense_arrays  # a small valid drive, dense layout
 
-T, M = 6, 5
-
-
-def dense_arrays() -> dict[str, np.ndarray]:
-    """A small valid drive in the dense layout (tests/test_loader.py's)."""
-    rng = np.random.default_rng(0)
-    feats = -np.ones((4, M, T))
-    for j in range(M):
-        a = j % 3
-        for t in range(a, min(T, a + 3)):
-            u, v, d = 300 + 10 * j + t, 150 + 5 * j, 5.0 + j
-            feats[:, j, t] = [u, v, u - d, v]
-    return {
-        "time_stamps": (1.3e9 + 0.1 * np.arange(T))[None, :],
-        "features": feats,
-        "linear_velocity": rng.normal(size=(3, T)),
-        "rotational_velocity": 0.1 * rng.normal(size=(3, T)),
-        "K": np.array([[700.0, 0, 600], [0, 700, 180], [0, 0, 1]]),
-        "b": np.array(0.54),
-        "cam_T_imu": se3_exp(np.array([0.1, -0.3, 0.7, 1.2, -1.2, 1.2])),
-    }
 
 
 def to_sparse(arrays: dict[str, np.ndarray], shuffle: int | None = None) -> dict[str, np.ndarray]:
