@@ -363,35 +363,9 @@ def check_calibration(cal: Calibration, monocular: bool = False) -> None:
     assert cal.cam_T_imu.shape == (4, 4) and np.all(np.isfinite(cal.cam_T_imu))
 
 
-@settings(max_examples=examples(600))
-@given(npz_file())
-def test_load_sequence_returns_a_valid_drive_or_input_error(tmp_path, case):
-    data, labels = case
-    path = tmp_path / "drive.npz"
-    path.write_bytes(data)
-    with bounded():
-        try:
-            seq, report = load_sequence_with_report(path)
-        except InputError as exc:
-            check_error(exc, path)
-        else:
-            check_sequence(seq)
-            assert report.n_invalid >= 0
-        try:
-            cal, n = read_calibration(path)
-        except InputError as exc:
-            check_error(exc, path)
-        else:
-            check_calibration(cal)
-            assert n >= 1
-
-
-@settings(max_examples=examples(400))
-@given(npz_file("sparse"))
-def test_sparse_file_loads_as_a_valid_drive_or_input_error(tmp_path, case):
-    data, labels = case
-    path = tmp_path / "drive.npz"
-    path.write_bytes(data)
+def check_drive_file(path, monocular: bool = False) -> None:
+    """The loader and the calibration reader on ``path``: a valid drive (its observations
+    sorted, one row per (frame, track)) or an InputError naming the file, within bounds."""
     with bounded():
         try:
             seq, report = load_sequence_with_report(path)
@@ -408,8 +382,26 @@ def test_sparse_file_loads_as_a_valid_drive_or_input_error(tmp_path, case):
         except InputError as exc:
             check_error(exc, path)
         else:
-            check_calibration(cal, monocular=True)
+            check_calibration(cal, monocular=monocular)
             assert n >= 1
+
+
+@settings(max_examples=examples(600))
+@given(npz_file())
+def test_load_sequence_returns_a_valid_drive_or_input_error(tmp_path, case):
+    data, labels = case
+    path = tmp_path / "drive.npz"
+    path.write_bytes(data)
+    check_drive_file(path)
+
+
+@settings(max_examples=examples(400))
+@given(npz_file("sparse"))
+def test_sparse_file_loads_as_a_valid_drive_or_input_error(tmp_path, case):
+    data, labels = case
+    path = tmp_path / "drive.npz"
+    path.write_bytes(data)
+    check_drive_file(path, monocular=True)
 
 
 # --------------------------------------------------------------------------- ground truth
