@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from tests.regression.breaks import REPO, broken_imu_noise, skip_or_fail
+from tests.regression.breaks import broken_imu_noise
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.driver import inertial_motion_inputs, run_filter
 from vislam.ekf.geometry import so3_log
@@ -25,7 +25,6 @@ from tests.test_imu_ekf import aligned_ate, pose_nees_in_gauge
 
 pytestmark = pytest.mark.regression
 
-EUROC = REPO.parent / "shared" / "data" / "euroc-v1_01"
 #: The issue's targets for the 4-dof aligned ATE on EuRoC's 30 s (m): 0.08 m and twice the
 #: smoother's (0.0131 m); measured 0.0239.
 EUROC_ATE_TARGET_M = min(0.08, 2 * 0.0131)
@@ -89,23 +88,8 @@ def test_stereo_room_monte_carlo_is_consistent():
 
 
 @pytest.fixture(scope="module")
-def euroc():
-    if not (EUROC / "mav0" / "imu0" / "data.csv").is_file():
-        skip_or_fail(f"EuRoC V1_01 not found at {EUROC}")
-    from vislam.eval.asl import read_asl_folder
-    from vislam.eval.eqvio import EQVIO_FILE
-    from vislam.eval.trajectory_files import read_trajectory
-    from vislam.graph.inertial_init import to_gravity_world
-
-    try:
-        drive = read_asl_folder(EUROC, "eqvio")
-    except Exception as exc:  # gtsam without its eqvio file
-        skip_or_fail(f"{EQVIO_FILE} not readable: {exc}")
-    gt = read_trajectory(EUROC / "groundtruth" / "V1_01_easy.csv")
-    t = drive.timestamps + drive.time_origin_ns * 1e-9
-    i = np.clip(np.searchsorted(gt.times, t - 1e-3), 0, gt.times.size - 1)
-    assert np.all(np.abs(gt.times[i] - t) < 1e-3)
-    return drive, to_gravity_world(gt.poses[i])
+def euroc(euroc_drive):
+    return euroc_drive
 
 
 def test_ekf_imu_on_euroc(euroc):

@@ -8,11 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.regression.conftest import REPO, skip_or_fail
 
 pytestmark = pytest.mark.regression
 
-DATA = REPO.parent / "shared" / "data" / "euroc-v1_01"
 #: The issue's target for the 4-dof aligned ATE (m).
 ATE_TARGET_M = 0.04
 #: Pin on the mean pose NEES over the 601 frames against the truth in the estimate's gauge
@@ -27,25 +25,10 @@ INCREMENTAL_GAP_M = 0.05
 
 
 @pytest.fixture(scope="module")
-def euroc():
-    if not (DATA / "mav0" / "imu0" / "data.csv").is_file():
-        skip_or_fail(f"EuRoC V1_01 not found at {DATA}")
-    from vislam.eval.asl import read_asl_folder
-    from vislam.eval.eqvio import EQVIO_FILE
+def euroc(euroc_drive):
     from vislam.graph.inertial_smoother import batch_solve, build_problem, incremental_solve, to_result
 
-    try:
-        drive = read_asl_folder(DATA, "eqvio")
-    except Exception as exc:  # gtsam without its eqvio file
-        skip_or_fail(f"{EQVIO_FILE} not readable: {exc}")
-    from vislam.eval.trajectory_files import read_trajectory
-    from vislam.graph.inertial_init import to_gravity_world
-
-    gt = read_trajectory(DATA / "groundtruth" / "V1_01_easy.csv")
-    t = drive.timestamps + drive.time_origin_ns * 1e-9
-    i = np.clip(np.searchsorted(gt.times, t - 1e-3), 0, gt.times.size - 1)
-    assert np.all(np.abs(gt.times[i] - t) < 1e-3)
-    truth = to_gravity_world(gt.poses[i])
+    drive, truth = euroc_drive
     problem = build_problem(drive)
     inc = incremental_solve(problem)
     return drive, truth, to_result(problem, batch_solve(problem, inc)), inc
