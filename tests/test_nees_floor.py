@@ -43,4 +43,8 @@ def test_the_report_adds_up(benchmark_script, capsys):
         assert 0 < rows[name][1] < rows[name][0]  # the kernels are part of the run
     total, kernels = rows["one run"]
     assert np.isclose(total, sum(rows[n][0] for n in ("ekf-joint", "ekf-invariant", "smoother")), atol=2e-3)
-    assert f"4 runs on 2 cores: {2 * total:.1f} s at these times" in out
+    # the script halves the unrounded run time; the table shows it to 3 decimals and this line
+    # to 1, so 2 x the table's total may round the other way (0.275 -> "0.5"; CI at 8fd5945)
+    shown = re.search(r"^4 runs on 2 cores: ([\d.]+) s at these times", out, re.M)
+    assert shown, out
+    assert abs(float(shown[1]) - 2 * total) <= 0.05 + 2 * 0.0005, (shown[1], total)
