@@ -215,6 +215,9 @@ FILTER_RULES: dict[str, Rule] = {
     "gyro_bias": Rule("bool"),
     "gyro_bias_sigma": sigma(1e3),  # rad/s
     "gyro_bias_walk": Rule("float", 0.0, 1e3),  # rad/s/sqrt(s); 0: a constant bias
+    "speed_scale": Rule("bool"),
+    "speed_scale_sigma": sigma(1.0),  # relative (0.005: 0.5 %)
+    "speed_scale_walk": Rule("float", 0.0, 1.0),  # relative/sqrt(s); 0: a constant scale
     "joint_linearisation": Rule("choice", choices=JOINT_LINEARISATIONS),
     "triangulation": Rule("choice", choices=TRIANGULATIONS),
     "landmark_parameterisation": Rule("choice", choices=LANDMARK_PARAMETERISATIONS),
@@ -286,6 +289,15 @@ class FilterConfig:
     #: Initial gyro-bias standard deviation (rad/s) and its random walk (rad/s/sqrt(s)).
     gyro_bias_sigma: float = 0.01
     gyro_bias_walk: float = 1e-4
+    #: Estimate a slow speed-scale error of the linear velocities as extra state, ``v_true =
+    #: (1 + s) v_measured`` with ``s`` a random walk (dead reckoning, ekf-joint, ekf-invariant
+    #: and the smoother; the other filters ignore it). Off by default; an identified model
+    #: turns it on where the drive cannot determine its slow velocity errors (ekf.model).
+    speed_scale: bool = False
+    #: Initial speed-scale standard deviation (relative: 0.005 is 0.5 %) and its random walk
+    #: (relative/sqrt(s)).
+    speed_scale_sigma: float = 0.005
+    speed_scale_walk: float = 0.005 / 20.0**0.5
     #: Linearisation of ekf-joint: "standard", "fej" or "oc" (see ekf/joint.py).
     joint_linearisation: str = "oc"
     #: Landmark initialisation of every EKF: "linear" or "unscented" (see TRIANGULATIONS);

@@ -258,6 +258,14 @@ def _check_noise_undetermined(value: Any) -> tuple[str, ...]:
                      + ", ".join(repr(c) for c in NOISE_LEVELS) + f", got {show_value(value)}")
 
 
+def _check_speed_scale_sigma(value: Any) -> float:
+    return FILTER_RULES["speed_scale_sigma"].check(value)
+
+
+def _check_speed_scale_walk(value: Any) -> float:
+    return FILTER_RULES["speed_scale_walk"].check(value)
+
+
 def _check_source(value: Any) -> str:
     if isinstance(value, str) and len(value) <= MAX_SOURCE_CHARS:
         return value
@@ -277,6 +285,8 @@ MODEL_CHECKS = {
     "velocity_sigma_log_sd": _check_log_sd,
     "gyro_sigma_log_sd": _check_log_sd,
     "noise_undetermined": _check_noise_undetermined,
+    "speed_scale_sigma": _check_speed_scale_sigma,
+    "speed_scale_walk": _check_speed_scale_walk,
     "gyro_bias": _check_bias,
     "gyro_bias_sigma": _check_bias_sigma,
     "radial_k1": _check_radial,
@@ -360,6 +370,11 @@ class Model:
     #: Noise levels the drive cannot determine (names from NOISE_LEVELS): their values are the
     #: conservative ones graph.parameter_uncertainty takes, not point estimates.
     noise_undetermined: tuple[str, ...] = ()
+    #: A slow speed-scale error of the linear velocities the estimators carry as a state
+    #: (FilterConfig.speed_scale): its initial sigma (relative) and random walk
+    #: (relative/sqrt(s)); None: none (the velocity noise model is the whole story).
+    speed_scale_sigma: float | None = None
+    speed_scale_walk: float | None = None
     #: Sigmas of the extrinsic (translation m, then rotation rad), None if not estimated.
     cam_T_imu_sigma: tuple[float, ...] | None = None
     #: Extrinsic components the drive cannot determine (names from EXTRINSIC_COMPONENTS).
@@ -375,7 +390,7 @@ class Model:
         for key in ("gyro_bias", "gyro_bias_sigma", "radial_k1", "radial_k1_sigma",
                     "pixel_correlation_time", "velocity_correlation_time",
                     "gyro_correlation_time", "cam_T_imu_sigma", "velocity_sigma_log_sd",
-                    "gyro_sigma_log_sd"):
+                    "gyro_sigma_log_sd", "speed_scale_sigma", "speed_scale_walk"):
             if values[key] is None:
                 del values[key]
         for name, value in _check_values(values, "model setting").items():
@@ -655,6 +670,9 @@ def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     }
     if model.gyro_bias is None:
         changes["gyro_bias"] = False
+    if model.speed_scale_sigma is not None:
+        changes.update(speed_scale=True, speed_scale_sigma=model.speed_scale_sigma,
+                       speed_scale_walk=model.speed_scale_walk or 0.0)
     return config.replace(**changes)
 
 

@@ -16,6 +16,12 @@ With a gyro-bias state ``b`` (rad/s, body frame) the corrected twist is ``u - B 
 ``G = tau J_l(-tau (u - B b)) B``, ``J_l`` the left Jacobian of SE(3); the bias follows a random
 walk of density ``sigma_walk`` (variance ``sigma_walk^2 tau`` per step).
 
+With a speed-scale state ``s`` (``config.speed_scale``: the linear velocity is off by a slowly
+varying factor, ``v_true = (1 + s) v``) the same holds with one more column: the twist errors
+``e = [b; s]`` (the bias where there is one) correct the twist as ``u - B(u) e`` with
+``B(u) = [[0, -v], [I3, 0]]`` (:func:`twist_error_matrix`), so ``G = tau J_l(-tau u_c) B(u)``
+(:func:`error_state_transition`); ``s`` is a random walk too.
+
 Public building blocks (also used by ``ekf/invariant.py``):
 :func:`paired_velocities`, :func:`motion_increment`, :func:`predict_mean`,
 :func:`prediction_jacobian`, :func:`process_noise`, :func:`predict_pose`,
@@ -34,6 +40,35 @@ from vislam.ekf.geometry import adjoint, curly_hat, se3_exp, theta_coeffs_scalar
 
 #: Selects the angular rows of a twist: ``u - GYRO_SELECT @ b`` removes a gyro bias ``b``.
 GYRO_SELECT = np.vstack([np.zeros((3, 3)), np.eye(3)])
+
+
+def twist_error_matrix(u: np.ndarray, gyro_bias: bool, speed_scale: bool) -> np.ndarray:
+    """``B(u)`` (6, m): the corrected twist is ``u - B(u) e`` for the twist errors ``e`` of the
+    state, in order: a gyro bias (3 columns, :data:`GYRO_SELECT`) and a speed scale (one column,
+    ``-[v; 0]``: ``(1 + s) v``), each where configured (module docstring)."""
+    u = np.asarray(u, dtype=float)
+    cols = []
+    if gyro_bias:
+        cols.append(GYRO_SELECT)
+    if speed_scale:
+        cols.append(np.r_[-u[:3], np.zeros(3)][:, None])
+    return np.hstack(cols) if cols else np.zeros((6, 0))
+
+
+def error_state_transition(
+    tau: float, u: np.ndarray, errors: np.ndarray, B: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Corrected twist ``u_c = u - B e``, the transition ``Phi = [[F, G], [0, I]]`` of the pose
+    perturbation and the twist errors ``e`` (``G = tau J_l(-tau u_c) B``, module docstring) and
+    ``F``. Returns ``(u_c, Phi, F)``; with ``B = GYRO_SELECT`` it is :func:`bias_transition`."""
+    B = np.asarray(B, dtype=float)
+    m = B.shape[1]
+    u_c = np.asarray(u, dtype=float) - B @ np.asarray(errors, dtype=float)
+    F = prediction_jacobian(tau, u_c)
+    Phi = np.eye(6 + m)
+    Phi[:6, :6] = F
+    Phi[:6, 6:] = tau * se3_left_jacobian(-tau * u_c) @ B
+    return u_c, Phi, F
 
 
 def paired_velocities(velocities: np.ndarray, pairing: str) -> np.ndarray:

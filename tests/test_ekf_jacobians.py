@@ -8,11 +8,13 @@ from vislam.ekf.geometry import se3_exp, se3_inv, se3_log
 from vislam.ekf.prediction import (
     GYRO_SELECT,
     bias_transition,
+    error_state_transition,
     paired_velocities,
     predict_mean,
     predict_pose,
     prediction_jacobian,
     se3_left_jacobian,
+    twist_error_matrix,
 )
 from vislam.ekf.sequence import Calibration
 from vislam.ekf.stereo_update import StereoModel, batched_landmark_update, chi2_gate
@@ -89,6 +91,35 @@ def test_se3_left_jacobian_and_bias_jacobian():
         return se3_log(predict_mean(Ut, tau, u - GYRO_SELECT @ (b + x[6:])) @ se3_inv(U1))
 
     np.testing.assert_allclose(Phi[:6], numeric_jacobian(g, np.zeros(9)), atol=1e-7)
+
+
+@pytest.mark.parametrize("gyro_bias", [True, False])
+def test_error_state_transition_with_a_speed_scale(gyro_bias):
+    """Phi of [d; (db); ds] against finite differences of the exact prediction with the twist
+    ``[(1 + s) v; w - b]``; with the bias alone it is bias_transition's."""
+    rng = np.random.default_rng(3)
+    U = se3_exp(rng.normal(size=6))
+    u, tau = np.array([8.0, 0.1, -0.05, 0.01, 0.02, 0.2]), 0.1
+    e = np.r_[[0.01, -0.02, 0.005] if gyro_bias else [], 0.004]
+    B = twist_error_matrix(u, gyro_bias, True)
+    assert B.shape == (6, e.size)
+    u_c, Phi, F = error_state_transition(tau, u, e, B)
+    b = e[:3] if gyro_bias else np.zeros(3)
+    np.testing.assert_allclose(u_c, np.r_[(1 + e[-1]) * u[:3], u[3:] - b])
+    U1 = predict_mean(U, tau, u_c)
+
+    def g(x):  # x = [d; (db); ds]
+        Ut = se3_exp(x[:6]) @ U
+        et = e + x[6:]
+        bt = et[:3] if gyro_bias else np.zeros(3)
+        return se3_log(predict_mean(Ut, tau, np.r_[(1 + et[-1]) * u[:3], u[3:] - bt]) @ se3_inv(U1))
+
+    np.testing.assert_allclose(Phi[:6], numeric_jacobian(g, np.zeros(6 + e.size)), atol=1e-7)
+    np.testing.assert_array_equal(Phi[6:], np.eye(6 + e.size)[6:])
+    if gyro_bias:
+        _, Phi_b, _ = bias_transition(tau, u, e[:3])
+        B3 = twist_error_matrix(u, True, False)
+        np.testing.assert_allclose(error_state_transition(tau, u, e[:3], B3)[1], Phi_b)
 
 
 def test_paired_velocities():
