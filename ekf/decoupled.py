@@ -104,6 +104,8 @@ class DecoupledEKF(Mapping):
     cross-covariance."""
 
     name = "ekf-decoupled"
+    #: The paper's pose update has no speed-scale row: config.speed_scale is ignored here.
+    carries_speed_scale = False
 
     def __init__(self, as_written: bool = True):
         self.as_written = bool(as_written)

@@ -1,9 +1,11 @@
 """Joint EKF SLAM: one state ``[d, (b_g), m_1 .. m_n]`` with the full joint covariance.
 
 * State: the inverse IMU pose ``U`` (left perturbation ``d``, paper convention), optionally a
-  gyro bias ``b_g`` (rad/s, random walk; the prediction uses ``w - b_g``), and the landmarks of
-  the *active* tracks. Layout of the covariance ``P``: pose rows 0:6, bias rows 6:9 when
-  ``config.gyro_bias``, then 3 rows per active landmark in slot order.
+  gyro bias ``b_g`` (rad/s, random walk; the prediction uses ``w - b_g``), a speed scale ``s``
+  (relative, random walk; the prediction uses ``(1 + s) v``; ``config.speed_scale``), and the
+  landmarks of the *active* tracks. Layout of the covariance ``P``: pose rows 0:6, bias rows
+  6:9 when ``config.gyro_bias``, the scale's row after them when ``config.speed_scale`` (the
+  *core* rows), then 3 rows per active landmark in slot order.
 * Prediction (paper eq. 11): pose/bias block ``Phi P Phi^T + Q``, cross block ``Phi P_cx``.
 * Update: every accepted observation of the frame in one stacked update, with the lossless
   3-row stereo reduction of :mod:`ekf.stereo_update`; ``P <- P - Y^T Y`` with
@@ -39,6 +41,8 @@ from vislam.ekf.kept_landmarks import KeptLandmarks, map_with_kept, oc_transport
 from vislam.ekf.prediction import (
     se3_exp_single,
     bias_transition,
+    error_state_transition,
+    twist_error_matrix,
     predict_mean,
     prediction_jacobian,
     process_noise,
@@ -57,14 +61,20 @@ class JointState:
     """Mean and joint covariance of ``[pose, (gyro bias), active landmarks]``."""
 
     def __init__(self, config: FilterConfig, n_tracks: int, textbook: bool = False):
-        self.core = 9 if config.gyro_bias else 6
+        self.core = (9 if config.gyro_bias else 6) + (1 if config.speed_scale else 0)
         self.U = np.eye(4)
         self.bias = np.zeros(3)
+        self.scale = 0.0
+        self.has_bias = bool(config.gyro_bias)
         self.P = np.zeros((self.core, self.core))
         self.P[:6, :6] = config.initial_pose_cov
         self.W = config.velocity_cov  # the twist noise of every prediction
         if config.gyro_bias:
-            self.P[6:, 6:] = config.gyro_bias_sigma**2 * np.eye(3)
+            self.P[6:9, 6:9] = config.gyro_bias_sigma**2 * np.eye(3)
+        #: the speed scale's row of P (None without one)
+        self.scale_row = self.core - 1 if config.speed_scale else None
+        if config.speed_scale:
+            self.P[-1, -1] = config.speed_scale_sigma**2
         self.lm_mean = np.zeros((0, 3))
         self.lm_first = np.zeros((0, 3))  # first estimates (FEJ linearisation points)
         self.linearisation = config.joint_linearisation
@@ -128,7 +138,16 @@ class JointState:
     def predict(self, tau: float, u: np.ndarray, config: FilterConfig) -> None:
         """Paper eq. 11 on the pose (and bias) block; cross-covariances follow ``Phi``."""
         c = self.core
-        if config.gyro_bias:
+        if config.speed_scale:  # the twist errors [b_g; s] (ekf.prediction.error_state_transition)
+            B = twist_error_matrix(u, config.gyro_bias, True)
+            errors = np.r_[self.bias, self.scale] if config.gyro_bias else np.array([self.scale])
+            u_c, Phi, _ = error_state_transition(tau, u, errors, B)
+            Q = np.zeros((c, c))
+            Q[:6, :6] = process_noise(tau, self.W)
+            if config.gyro_bias:
+                Q[6:9, 6:9] = config.gyro_bias_walk**2 * tau * np.eye(3)
+            Q[-1, -1] = config.speed_scale_walk**2 * tau
+        elif config.gyro_bias:
             u_c, Phi, _ = bias_transition(tau, u, self.bias)
             Q = np.zeros((9, 9))
             Q[:6, :6] = process_noise(tau, self.W)
@@ -236,8 +255,10 @@ class JointState:
         E = se3_exp_single(dx[:6])
         U_prior = self.U
         self.U = E @ self.U  # paper eq. 14: mu <- exp((K r)^) mu
-        if self.core == 9:
+        if self.has_bias:
             self.bias = self.bias + dx[6:9]
+        if self.scale_row is not None:
+            self.scale = self.scale + float(dx[self.scale_row])
         dm = dx[self.core :].reshape(-1, 3)
         x_prior = self.lm_mean
         self.lm_mean = self.lm_mean + dm
@@ -434,7 +455,7 @@ def gauge_nullspace(U: np.ndarray, m: np.ndarray, core: int = 6) -> np.ndarray:
     A global change of world frame ``g = exp(xi^)`` (``xi = [v; w]`` in the world) maps
     ``U -> U g^-1`` and ``m -> g m`` and leaves every measurement unchanged. To first order the
     pose's left perturbation moves by ``d = -Ad(U) xi`` and each landmark by
-    ``[I, -m^] xi``; bias rows (``core == 9``) are zero. Without gravity all 6 are unobservable.
+    ``[I, -m^] xi``; bias and scale rows (6 to ``core``) are zero. Without gravity all 6 are unobservable.
     """
     n = m.shape[0]
     N = np.zeros((core + 3 * n, 6))
@@ -556,6 +577,10 @@ class JointEKF:
             info["inverse_depth_converted"] = self.state.n_converted
         if self.config.gyro_bias:
             info["gyro_bias"] = self.state.bias.tolist()
+        if self.state.scale_row is not None:
+            r = self.state.scale_row
+            info["speed_scale"] = float(self.state.scale)
+            info["speed_scale_sigma_final"] = float(np.sqrt(self.state.P[r, r]))
         return info
 
 
