@@ -3,6 +3,7 @@ faults real drives have, each run as `vislam bench` with no flags runs it.
 
     .venv/bin/python benchmarks/campaign.py [--drives 200] [--first-seed 0] [--jobs 2]
                                             [--frames 250] [--out DIR] [--cache DIR]
+                                            [--model identified|true]
 
 Drive ``seed`` is :func:`eval.campaign.draw_drive` ``(seed, frames)`` (its module docstring
 lists the faults and their ranges); :func:`eval.campaign.evaluate_drive` runs dead reckoning,
@@ -58,23 +59,24 @@ from pathlib import Path
 WORST = 10
 
 
-def _evaluate(seed: int, frames: int):
+def _evaluate(seed: int, frames: int, model: str = "identified"):
     from vislam.eval.campaign import draw_drive, evaluate_drive
 
-    return evaluate_drive(draw_drive(seed, frames))
+    return evaluate_drive(draw_drive(seed, frames), model=model)
 
 
-def run_campaign(seeds: list[int], frames: int, jobs: int, on_done=None) -> list:
+def run_campaign(seeds: list[int], frames: int, jobs: int, on_done=None,
+                 model: str = "identified") -> list:
     """The outcomes of ``seeds``, in the order of ``seeds``."""
     if jobs <= 1:
         out = []
         for s in seeds:
-            out.append(_evaluate(s, frames))
+            out.append(_evaluate(s, frames, model))
             if on_done:
                 on_done(out[-1])
         return out
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = [pool.submit(_evaluate, s, frames) for s in seeds]
+        futures = [pool.submit(_evaluate, s, frames, model) for s in seeds]
         out = []
         for f in futures:
             out.append(f.result())
@@ -150,6 +152,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=".", help="folder of campaign.json (default: here)")
     parser.add_argument("--cache", default=None,
                         help="model cache folder (default: a fresh temporary one)")
+    parser.add_argument("--model", choices=("identified", "true"), default="identified",
+                        help="identified: as `vislam bench` runs a drive (default); true: under "
+                             "each drive's true model (eval.campaign.drive_true_model), the "
+                             "ceiling a perfect identification would reach")
     args = parser.parse_args(argv)
     from vislam.eval.campaign import DEFAULT_FRAMES, summarise
     from vislam.eval.consistency import POSE_NEES_BAND
@@ -168,12 +174,12 @@ def main(argv: list[str] | None = None) -> int:
         os.environ["VISLAM_CACHE_DIR"] = str(Path(args.cache).resolve())
     seeds = list(range(args.first_seed, args.first_seed + args.drives))
     print(f"campaign: {len(seeds)} drives (seeds {seeds[0]}-{seeds[-1]}), {frames} frames each, "
-          f"{args.jobs} jobs; ATE = aligned ATE (m), NEES = mean pose NEES, band "
+          f"{args.jobs} jobs, {args.model} model; ATE = aligned ATE (m), NEES = mean pose NEES, band "
           f"[{POSE_NEES_BAND[0]:.2f}, {POSE_NEES_BAND[1]:.2f}]; ratio = worst SLAM ATE / dead "
           "reckoning's")
     print(header())
     path = out_dir / "campaign.json"
-    doc = {"schema": 1, "frames": frames, "first_seed": args.first_seed, "drives": 0,
+    doc = {"schema": 1, "model": args.model, "frames": frames, "first_seed": args.first_seed, "drives": 0,
            "nees_band": list(POSE_NEES_BAND), "complete": False, "outcomes": []}
 
     def done(o) -> None:  # one row, and campaign.json so far: a stopped campaign keeps its drives
@@ -183,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
         write_json(path, doc)
 
     t0 = time.perf_counter()
-    outcomes = run_campaign(seeds, frames, args.jobs, on_done=done)
+    outcomes = run_campaign(seeds, frames, args.jobs, on_done=done, model=args.model)
     wall = time.perf_counter() - t0
     if tmp is not None:
         tmp.cleanup()

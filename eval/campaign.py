@@ -394,19 +394,46 @@ def assess(figures: Mapping[str, EstimatorFigures]) -> tuple[AssertionResult, As
     return ate, AssertionResult("nees", ok, tuple(lines))
 
 
-def evaluate_drive(drive: CampaignDrive, jobs: int = 1) -> DriveOutcome:
+def drive_true_model(drive: CampaignDrive, result: SimResult):
+    """The true model of ``drive`` (:func:`eval.simulate.true_model`) with, where it carries a
+    speed-scale fault, the speed-scale state that describes it: ``s`` uniform in +-amplitude
+    (sigma ``amplitude / sqrt(3)``), independent knots ``time_scale_s`` apart (a walk of
+    ``sqrt(2/3) amplitude / sqrt(time_scale_s)``)."""
+    from vislam.eval.simulate import true_model
+
+    model = true_model(result)
+    fault = drive.speed_scale
+    if fault is None or fault.amplitude == 0.0:
+        return model
+    return model.replace(speed_scale_sigma=fault.amplitude / math.sqrt(3.0),
+                         speed_scale_walk=fault.amplitude * math.sqrt(2.0 / 3.0 / fault.time_scale_s))
+
+
+def evaluate_drive(drive: CampaignDrive, jobs: int = 1, model: str = "identified") -> DriveOutcome:
     """Run :data:`ESTIMATORS` on ``drive`` as ``vislam bench`` with no flags does (module
-    docstring; ``jobs`` worker processes) and assess them."""
+    docstring; ``jobs`` worker processes) and assess them. ``model="true"`` runs them under
+    the drive's true model instead (:func:`drive_true_model`, in memory): what a perfect
+    identification would give, the ceiling of the assertions."""
     from vislam.eval.simulate import write_simulation
     from vislam.eval.testing import run_drive
 
+    if model not in ("identified", "true"):
+        raise ValueError(f"model: 'identified' or 'true', got {model!r}")
     t0, c0 = time.perf_counter(), time.process_time()
     result = drive.simulate()
     obs = float(simulation_stats(result)["obs_per_frame_mean"])
     name = drive.sim.name
-    with tempfile.TemporaryDirectory(prefix="vislam-campaign-") as folder:
-        paths = write_simulation(result, folder, name)
-        study = run_drive(list(ESTIMATORS), paths["data"], model="identified", jobs=jobs)
+    if model == "true":
+        from vislam.ekf.config import FilterConfig
+        from vislam.eval.drives import apply_model_to, bench_sequence
+
+        (bs,) = apply_model_to([bench_sequence(result)], drive_true_model(drive, result),
+                               FilterConfig(), "true")
+        study = run_drive(list(ESTIMATORS), bs, jobs=jobs)
+    else:
+        with tempfile.TemporaryDirectory(prefix="vislam-campaign-") as folder:
+            paths = write_simulation(result, folder, name)
+            study = run_drive(list(ESTIMATORS), paths["data"], model="identified", jobs=jobs)
     figures = {}
     for est in ESTIMATORS:
         if est in study.errors:
