@@ -421,7 +421,9 @@ class InvariantEKF:
             info["speed_scale"] = float(self.state.scale)
             info["speed_scale_sigma_final"] = float(np.sqrt(self.state.P[i, i]))
         info["estimator"] = ESTIMATOR_NAME
-        info["error_state"] = "right-invariant SE_{1+K}(3): [xi_p, xi_R, (xi_b), (xi_s), xi_l...]"
+        info["error_state"] = ("right-invariant SE_{1+K}(3): [xi_p, xi_R, (xi_b), (xi_s), xi_l...]"
+                               if self.state.scale is not None else
+                               "right-invariant SE_{1+K}(3): [xi_p, xi_R, (xi_b), xi_l...]")
         return info
 
 
