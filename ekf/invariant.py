@@ -5,17 +5,20 @@ State. The IMU pose in the world and the K active landmarks form one group eleme
     X = [[R, p, l_1, ..., l_K],
          [0, I_{1+K}        ]]          (world = IMU at frame 0; T = [[R, p], [0, 1]] = world_T_imu)
 
-and, when ``config.gyro_bias`` is set, a constant gyro bias ``b`` (a vector, outside the group).
+and, when ``config.gyro_bias`` is set, a constant gyro bias ``b`` (a vector, outside the group);
+when ``config.speed_scale`` is set, a slow speed-scale error ``s`` of the linear velocities (a
+scalar, outside the group: the true body twist is ``[(1 + s) v; w - b]``).
 
 Error. Right-invariant: ``X_true = exp(xi) X_est`` with the tangent ordered
 
-    xi = [xi_p (3), xi_R (3), (xi_b (3) with gyro bias), xi_l1 (3), ..., xi_lK (3)]
+    xi = [xi_p (3), xi_R (3), (xi_b (3) with gyro bias), (xi_s (1) with speed scale),
+          xi_l1 (3), ..., xi_lK (3)]
 
 so the leading pose block ``[xi_p; xi_R]`` is an SE(3) twist, translation first, in the
 conventions of :mod:`ekf.geometry`: ``T_true = se3_exp([xi_p; xi_R]) T_est`` (a left, world-frame
 perturbation of T). The exponential of SE_{1+K}(3) is, with ``R_d = exp(xi_R^)``, ``J = J_l(xi_R)``,
 
-    R <- R_d R,   p <- R_d p + J xi_p,   l_j <- R_d l_j + J xi_lj,   (b <- b + xi_b).
+    R <- R_d R,   p <- R_d p + J xi_p,   l_j <- R_d l_j + J xi_lj,   (b <- b + xi_b),   (s <- s + xi_s).
 
 Propagation (the group form of paper eq. 4, body twist ``u = [v; w]``): ``T <- T se3_exp(tau u)``,
 landmarks constant. The dynamics are group-affine with body inputs, so the error propagates with
@@ -23,7 +26,14 @@ the identity; body twist noise ``n`` enters as ``xi <- xi + tau Ad_X[:, pose] J_
 the landmark rows of the SE_{1+K}(3) adjoint are ``[0, l_j^ R]`` (a rotation error also moves the
 landmark error coordinates ``xi_lj ~ l_true - l_est + l_est^ xi_R``): see
 :func:`noise_jacobian`. A gyro bias makes the error dynamics depend on the estimate
-("imperfect IEKF"): ``xi <- xi - tau B_R xi_b`` to first order (:func:`bias_jacobian`).
+("imperfect IEKF"): ``xi <- xi - tau B_R xi_b`` to first order (:func:`twist_error_coupling`).
+A speed scale does the same through the linear velocity: the true twist minus the estimate's
+is ``[(s - s_est) v; -(b - b_est)] = [v xi_s; -xi_b]`` (``v`` the measured linear velocity), so
+``xi_s`` acts as linear-velocity noise ``v xi_s`` and ``xi <- xi + tau B_p v xi_s`` (``B_p`` the
+linear-velocity columns of the noise Jacobian). Both at once: the error transition is
+``I + F S_e`` with ``F = -tau B E(u)`` and ``E(u) = [[0, -v], [I, 0]]`` the twist-error matrix of
+:func:`ekf.prediction.twist_error_matrix` (its columns where configured), ``S_e`` selecting
+``[xi_b; xi_s]``. Bias and scale are random walks: ``P[e, e] += walk^2 tau`` per step.
 
 Observation (paper eq. 1-3): ``z = M pi(cam_T_imu T^-1 l_j)``. Under the right-invariant error,
 ``T_true^-1 l_true = R^T (l - p) + R^T J_r(xi_R) (xi_lj - xi_p)`` exactly, so the Jacobian is
@@ -103,8 +113,13 @@ R_IDX = slice(3, 6)
 B_IDX = slice(6, 9)
 
 
-def landmark_offset(gyro_bias: bool) -> int:
+def landmark_offset(gyro_bias: bool, speed_scale: bool = False) -> int:
     """Index of the first landmark coordinate in the error state."""
+    return (9 if gyro_bias else 6) + (1 if speed_scale else 0)
+
+
+def scale_index(gyro_bias: bool) -> int:
+    """Index of the speed-scale error ``xi_s`` in the error state (with ``config.speed_scale``)."""
     return 9 if gyro_bias else 6
 
 
@@ -112,22 +127,28 @@ def landmark_offset(gyro_bias: bool) -> int:
 # Group math of SE_{1+K}(3)
 # --------------------------------------------------------------------------------------
 def retract(
-    T: np.ndarray, landmarks: np.ndarray, delta: np.ndarray, gyro_bias: np.ndarray | None = None
+    T: np.ndarray,
+    landmarks: np.ndarray,
+    delta: np.ndarray,
+    gyro_bias: np.ndarray | None = None,
+    speed_scale: float | None = None,
 ):
-    """``exp(delta) X``: apply a right-invariant correction to pose, landmarks (and bias).
+    """``exp(delta) X``: apply a right-invariant correction to pose, landmarks (and bias and
+    speed scale, each None where the state has none).
 
-    ``delta`` is ordered as the error state. Returns ``(T, landmarks, gyro_bias)``.
+    ``delta`` is ordered as the error state. Returns ``(T, landmarks, gyro_bias, speed_scale)``.
     """
     delta = np.asarray(delta, dtype=float)
     Rd, J = so3_exp_and_left_jacobian(delta[R_IDX])
-    off = landmark_offset(gyro_bias is not None)
+    off = landmark_offset(gyro_bias is not None, speed_scale is not None)
     T_new = np.eye(4)
     T_new[:3, :3] = Rd @ T[:3, :3]
     T_new[:3, 3] = Rd @ T[:3, 3] + J @ delta[P_IDX]
     dl = delta[off:].reshape(-1, 3)
     lm_new = landmarks @ Rd.T + dl @ J.T
     b_new = None if gyro_bias is None else gyro_bias + delta[B_IDX]
-    return T_new, lm_new, b_new
+    s_new = None if speed_scale is None else speed_scale + delta[scale_index(gyro_bias is not None)]
+    return T_new, lm_new, b_new, s_new
 
 
 def error_between(
@@ -137,6 +158,8 @@ def error_between(
     lm_est: np.ndarray,
     b_true: np.ndarray | None = None,
     b_est: np.ndarray | None = None,
+    s_true: float | None = None,
+    s_est: float | None = None,
 ) -> np.ndarray:
     """The exact error ``xi = log(X_true X_est^-1)`` (the inverse of :func:`retract`)."""
     Rd = T_true[:3, :3] @ T_est[:3, :3].T
@@ -147,24 +170,46 @@ def error_between(
     parts = [xp, phi]
     if b_true is not None:
         parts.append(np.asarray(b_true) - np.asarray(b_est))
+    if s_true is not None:
+        parts.append([s_true - s_est])
     parts.append(xl.ravel())
     return np.concatenate(parts)
 
 
-def noise_jacobian(T: np.ndarray, landmarks: np.ndarray, twist: np.ndarray, gyro_bias: bool = False):
+def noise_jacobian(
+    T: np.ndarray, landmarks: np.ndarray, twist: np.ndarray, gyro_bias: bool = False,
+    speed_scale: bool = False,
+):
     """``B`` (n x 6): one step's error change is ``tau B n`` for body twist noise ``n``.
 
     ``T`` is the pose at the start of the step and ``twist = tau u`` the step's twist.
     ``B = Ad_X[:, pose] J_l(tau u)`` with the landmark rows of the SE_{1+K}(3) adjoint
-    ``[0, l_j^ R]``; bias rows are zero.
+    ``[0, l_j^ R]``; bias and speed-scale rows are zero.
     """
-    off = landmark_offset(gyro_bias)
+    off = landmark_offset(gyro_bias, speed_scale)
     K = landmarks.shape[0]
     R = T[:3, :3]
     B = np.zeros((off + 3 * K, 6))
     B[:6] = adjoint(T)
     B[off:, 3:] = (hat(landmarks) @ R).reshape(3 * K, 3)
     return B @ se3_left_jacobian(twist)
+
+
+def twist_error_coupling(
+    B: np.ndarray, tau: float, velocity: np.ndarray, gyro_bias: bool, speed_scale: bool
+) -> np.ndarray | None:
+    """``F = -tau B E(u)`` (n, m): the error transition is ``I + F S_e`` (module docstring),
+    ``B`` the noise Jacobian, ``velocity`` the measured linear velocity ``v``; its columns are
+    the bias's ``-tau B_R`` (3) and the speed scale's ``tau B_p v`` (1), each where configured.
+    None with neither."""
+    cols = []
+    if gyro_bias:
+        cols.append(-tau * B[:, 3:])
+    if speed_scale:
+        cols.append(tau * (B[:, :3] @ np.asarray(velocity, dtype=float))[:, None])
+    if not cols:
+        return None
+    return cols[0] if len(cols) == 1 else np.hstack(cols)
 
 
 def observation_jacobian(T: np.ndarray, q_cam: np.ndarray, cam_T_imu: np.ndarray, M: np.ndarray):
@@ -229,13 +274,16 @@ def landmark_world_cov(P: np.ndarray, landmarks: np.ndarray, slots: np.ndarray, 
 # --------------------------------------------------------------------------------------
 @dataclass
 class InvariantState:
-    """Mean of the group element, bias and inverse-depth slots, and the covariance ``P``."""
+    """Mean of the group element, bias, speed scale and inverse-depth slots, and the
+    covariance ``P``."""
 
     T: np.ndarray
     landmarks: np.ndarray  # (K, 3), slot order: world l, or x = [alpha, beta, rho]
     tracks: np.ndarray  # (K,) track id of each slot
     P: np.ndarray
     bias: np.ndarray | None
+    #: The speed scale ``s`` (``v_true = (1 + s) v``), None without ``config.speed_scale``.
+    scale: float | None = None
     # Inverse-depth slots and their anchors (world_T_camera at the first observation).
     lm_id: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     anchor_R: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
@@ -283,18 +331,23 @@ class InvariantEKF:
         self.Vinv = np.linalg.inv(self.V)
         self.W_chol = np.linalg.cholesky(config.velocity_cov)
         use_bias = bool(config.gyro_bias)
-        self.off = off = landmark_offset(use_bias)
+        use_scale = bool(config.speed_scale)
+        self.off = off = landmark_offset(use_bias, use_scale)
         self.gate = None if config.gate_probability is None else chi2.ppf(config.gate_probability, 4)
         P0 = np.zeros((off, off))
         P0[:6, :6] = config.initial_pose_cov
         if use_bias:
             P0[B_IDX, B_IDX] = config.gyro_bias_sigma**2 * np.eye(3)
+        if use_scale:
+            i = scale_index(use_bias)
+            P0[i, i] = config.speed_scale_sigma**2
         self.state = InvariantState(
             T=np.eye(4),
             landmarks=np.zeros((0, 3)),
             tracks=np.zeros(0, dtype=np.int64),
             P=P0,
             bias=np.zeros(3) if use_bias else None,
+            scale=0.0 if use_scale else None,
             retired=InvariantKeptLandmarks(off) if config.keep_landmarks and not self.textbook else None,
         )
         self.slot_of = -np.ones(seq.n_tracks, dtype=np.int64)
@@ -363,8 +416,14 @@ class InvariantEKF:
         if self.state.bias is not None:
             info["gyro_bias"] = self.state.bias.tolist()
             info["gyro_bias_sigma_final"] = np.sqrt(np.diag(self.state.P[B_IDX, B_IDX])).tolist()
+        if self.state.scale is not None:
+            i = scale_index(self.state.bias is not None)
+            info["speed_scale"] = float(self.state.scale)
+            info["speed_scale_sigma_final"] = float(np.sqrt(self.state.P[i, i]))
         info["estimator"] = ESTIMATOR_NAME
-        info["error_state"] = "right-invariant SE_{1+K}(3): [xi_p, xi_R, (xi_b), xi_l...]"
+        info["error_state"] = ("right-invariant SE_{1+K}(3): [xi_p, xi_R, (xi_b), (xi_s), xi_l...]"
+                               if self.state.scale is not None else
+                               "right-invariant SE_{1+K}(3): [xi_p, xi_R, (xi_b), xi_l...]")
         return info
 
 
@@ -380,49 +439,64 @@ def run_invariant(
 
 def _propagate(st: InvariantState, u: np.ndarray, tau: float, W_chol, config: FilterConfig, off: int) -> bool:
     """Paper eq. 11 in group form: ``T <- T exp(tau u)``; ``P <- P + tau^2 B W B^T`` (the error
-    transition is the identity), plus the bias coupling with a gyro-bias state. Inverse-depth
-    slots get no noise and no bias coupling: their rows of ``B`` are zero.
+    transition is the identity), plus the coupling of a gyro-bias and a speed-scale state.
+    Inverse-depth slots get no noise and no coupling: their rows of ``B`` are zero.
 
     Returns False when the noise term is not finite (an absurd but finite twist or time step;
     the caller raises)."""
     u = np.array(u, dtype=float)
+    v_measured = u[:3].copy()
     if st.bias is not None:
         u[3:] -= st.bias
+    if st.scale is not None:
+        u[:3] *= 1.0 + st.scale
     twist = tau * u
-    B = noise_jacobian(st.T, st.landmarks, twist, st.bias is not None)
+    use_bias, use_scale = st.bias is not None, st.scale is not None
+    B = noise_jacobian(st.T, st.landmarks, twist, use_bias, use_scale)
     if st.lm_id.any():
         B[off:].reshape(-1, 3, 6)[st.lm_id] = 0.0
     BL = tau * (B @ W_chol)
     if not finite_norm2(BL):
         return False
     P = st.P
-    F = None
-    if st.bias is not None:
-        # Imperfect IEKF: the bias error acts as angular-velocity noise -xi_b, so with the
-        # bias columns Pb the step adds F Pb^T + Pb F^T + F Pbb F^T, F = -tau B_R: one
-        # product of inner size 6, [F, Pb + F Pbb] [Pb, F]^T.
-        F = -tau * B[:, 3:]  # (n, 3)
-        Pb = P[:, B_IDX].copy()
-        add_outer(P, np.hstack([F, Pb + F @ Pb[B_IDX]]), np.hstack([Pb, F]))
-        P[B_IDX, B_IDX] += config.gyro_bias_walk**2 * tau * np.eye(3)
+    F = twist_error_coupling(B, tau, v_measured, use_bias, use_scale)
+    if F is not None:
+        # Imperfect IEKF: the bias error acts as angular-velocity noise -xi_b, the scale error
+        # as linear-velocity noise v xi_s, so with the columns Pe of e = [xi_b; xi_s] the step
+        # adds F Pe^T + Pe F^T + F Pee F^T (F = twist_error_coupling): one product of inner
+        # size 2m, [F, Pe + F Pee] [Pe, F]^T; then the random walks.
+        E = slice(6, off)
+        Pb = P[:, E].copy()
+        add_outer(P, np.hstack([F, Pb + F @ Pb[E]]), np.hstack([Pb, F]))
+        if use_bias:
+            P[B_IDX, B_IDX] += config.gyro_bias_walk**2 * tau * np.eye(3)
+        if use_scale:
+            i = scale_index(use_bias)
+            P[i, i] += config.speed_scale_walk**2 * tau
     add_outer(P, BL, BL)
-    _predict_retired(st, twist, tau, W_chol, config, BL, F)
+    _predict_retired(st, twist, tau, W_chol, config, BL, F, v_measured)
     st.T = st.T @ se3_exp_single(twist)
     return True
 
 
-def _predict_retired(st: InvariantState, twist, tau, W_chol, config, BL, F) -> None:
+def _predict_retired(st: InvariantState, twist, tau, W_chol, config, BL, F, v_measured) -> None:
     """The retired landmarks' share of a prediction (RI-1): ``BL`` (dim A, 6) the twist noise
-    rows of the active state, ``F`` (dim A, 3) its bias coupling (None without a bias); called
-    before ``st.T`` moves (the retired rows take the pose at the start of the step)."""
+    rows of the active state, ``F`` (dim A, m) its bias and speed-scale coupling (None with
+    neither), ``v_measured`` the step's measured linear velocity; called before ``st.T`` moves
+    (the retired rows take the pose at the start of the step)."""
     if st.retired is None or not st.retired.n:
         return
     N_A = BL
-    if st.bias is not None:
-        walk = np.zeros((BL.shape[0], 3))
-        walk[B_IDX] = np.sqrt(config.gyro_bias_walk**2 * tau) * np.eye(3)
+    use_bias, use_scale = st.bias is not None, st.scale is not None
+    if use_bias or use_scale:
+        walk = np.zeros((BL.shape[0], landmark_offset(use_bias, use_scale) - 6))
+        if use_bias:
+            walk[B_IDX, :3] = np.sqrt(config.gyro_bias_walk**2 * tau) * np.eye(3)
+        if use_scale:
+            walk[scale_index(use_bias), -1] = np.sqrt(config.speed_scale_walk**2 * tau)
         N_A = np.concatenate([BL, walk], axis=1)
-    st.retired.predict(st.T, twist, tau, W_chol, N_A, F, st.P)
+    st.retired.predict(st.T, twist, tau, W_chol, N_A, F, st.P,
+                       v_measured if use_scale else None)
 
 
 def _update(st: InvariantState, slots, z, M, cam_T_imu, V, Vinv, gate, config: FilterConfig, off: int):
@@ -557,7 +631,7 @@ def _update(st: InvariantState, slots, z, M, cam_T_imu, V, Vinv, gate, config: F
         )
     P -= KSKt
     x_prior = st.landmarks
-    st.T, st.landmarks, st.bias = retract(st.T, st.landmarks, delta, st.bias)
+    st.T, st.landmarks, st.bias, st.scale = retract(st.T, st.landmarks, delta, st.bias, st.scale)
     C_active = None
     if st.lm_id.any():
         ids = np.flatnonzero(st.lm_id)

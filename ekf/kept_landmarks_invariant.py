@@ -3,10 +3,12 @@
 
 The invariant filter differs from the joint one in three places, each handled exactly:
 
-* **Prediction.** The error transition is ``Phi_A = I + F_A S_b`` (the gyro-bias coupling), and a
-  group landmark's error coordinates take the pose's twist noise too (the landmark rows
-  ``[0, l^ R]`` of the adjoint): ``x_j' = x_j + F_j x_b + N_j n`` with ``x_A' = Phi_A x_A + N_A n``
-  (``N_A`` also carries the bias random walk). With ``A_j = (F_j + F_j^b S_b) Phi_A^-1`` and
+* **Prediction.** The error transition is ``Phi_A = I + F_A S_b`` (the coupling of the twist
+  errors ``x_b = [xi_b; xi_s]``, gyro bias and speed scale where configured, columns 6 to
+  ``off``), and a group landmark's error coordinates take the pose's twist noise too (the
+  landmark rows ``[0, l^ R]`` of the adjoint): ``x_j' = x_j + F_j^b x_b + N_j n`` with
+  ``x_A' = Phi_A x_A + N_A n`` (``N_A`` also carries the random walks; ``F_j^b = -tau B_j E(u)``
+  as the active rows', ekf.invariant). With ``A_j = (F_j + F_j^b S_b) Phi_A^-1`` and
   ``D_j = A_j N_A - N_j``:  ``F_j' = A_j - D_j N_A^T P'^-1``,
   ``E_j' = E_j + D_j (I - N_A^T P'^-1 N_A) D_j^T``.                                    (RI-1)
   (RL-2 is the case ``N_j = 0``.)
@@ -31,16 +33,18 @@ R_COLS = slice(3, 6)
 
 class InvariantKeptLandmarks(KeptLandmarks):
     """:class:`ekf.kept_landmarks.KeptLandmarks` for the right-invariant EKF (see the module
-    docstring); ``off`` the first landmark column (6, or 9 with a gyro bias)."""
+    docstring); ``off`` the first landmark column (6, plus 3 with a gyro bias, plus 1 with a
+    speed scale)."""
 
     def __init__(self, off: int):
         super().__init__(off)
         self.off = off
 
-    def predict(self, T, twist, tau, W_chol, N_A, F_A, P_new) -> None:
+    def predict(self, T, twist, tau, W_chol, N_A, F_A, P_new, scale_velocity=None) -> None:
         """(RI-1) after the active block's prediction ``P_new = Phi_A P Phi_A^T + N_A N_A^T``;
-        ``T`` the pose at the start of the step, ``twist = tau u``; ``F_A`` (dim A, 3) the bias
-        coupling (None without a bias state)."""
+        ``T`` the pose at the start of the step, ``twist = tau u``; ``F_A`` (dim A, m) the
+        coupling of the bias and speed scale (None with neither); ``scale_velocity`` the
+        measured linear velocity ``v`` with a speed-scale state (its last column), else None."""
         n = self.n
         group = ~self.inverse
         Bj = np.zeros((n, 3, 6))  # each retired landmark's rows of noise_jacobian
@@ -48,8 +52,13 @@ class InvariantKeptLandmarks(KeptLandmarks):
         Bj = Bj @ se3_left_jacobian(twist)
         F = self.F
         if F_A is not None:  # H_j = F_j + F_j^b S_b, then A_j = H_j (I - F_A S_b)
-            F[:, 6:9] += (-tau * Bj[:, :, 3:]).reshape(-1, 3)
-            F[:, 6:9] -= F @ F_A
+            e = slice(6, 6 + F_A.shape[1])
+            n_bias = F_A.shape[1] - (scale_velocity is not None)
+            if n_bias:
+                F[:, 6:9] += (-tau * Bj[:, :, 3:]).reshape(-1, 3)
+            if scale_velocity is not None:
+                F[:, 6 + n_bias] += tau * (Bj[:, :, :3] @ scale_velocity).reshape(-1)
+            F[:, e] -= F @ F_A
         N_j = (tau * Bj @ W_chol).reshape(-1, 6)
         N_j = np.concatenate([N_j, np.zeros((N_j.shape[0], N_A.shape[1] - 6))], axis=1)
         D = F @ N_A - N_j  # (3n, m)

@@ -62,7 +62,7 @@ def test_retract_pose_part_is_left_se3_exp_and_error_inverts_it():
     for bias in (None, rng.normal(size=3)):
         off = inv.landmark_offset(bias is not None)
         d = rng.normal(scale=0.3, size=off + 12)
-        T2, lm2, b2 = inv.retract(T, lm, d, bias)
+        T2, lm2, b2, _ = inv.retract(T, lm, d, bias)
         assert np.allclose(T2, se3_exp(d[:6]) @ T)
         back = inv.error_between(T2, lm2, T, lm, b2, bias)
         assert np.allclose(back, d, atol=1e-10)
@@ -88,7 +88,7 @@ def test_observation_jacobian_against_exact_model():
         H[:, 6:] = A
 
         def h(xi):
-            T2, l2, _ = inv.retract(T, l[None], xi)
+            T2, l2, _, _ = inv.retract(T, l[None], xi)
             return observe(T2, l2[0])
 
         assert np.allclose(H, numeric_jacobian(h, np.zeros(9)), rtol=1e-5, atol=1e-4)
@@ -107,7 +107,7 @@ def test_propagation_error_dynamics_against_exact_model(use_bias):
     n_x = off + 9
 
     def step(xi, noise):
-        Tt, lt, bt = inv.retract(T, lm, xi, b)
+        Tt, lt, bt, _ = inv.retract(T, lm, xi, b)
         ut = u + noise
         ue = u.copy()
         if use_bias:
@@ -143,7 +143,7 @@ def test_augmentation_jacobians_against_exact_model():
 
     def xi_new(x):
         xi_old, dz = x[:12], x[12:]
-        Tt, lt, _ = inv.retract(T, lm_old, xi_old)
+        Tt, lt, _, _ = inv.retract(T, lm_old, xi_old)
         l_t = new_landmark(Tt, z0 + dz)
         e = inv.error_between(Tt, np.vstack([lt, l_t]), T, np.vstack([lm_old, l_est]))
         return e[-3:]
@@ -164,7 +164,7 @@ def test_landmark_world_jacobian_against_exact_model():
 
     def dl(x):  # x = [xi_R, xi_l]
         xi = np.concatenate([np.zeros(3), x[:3], x[3:]])
-        _, l2, _ = inv.retract(T, l, xi)
+        _, l2, _, _ = inv.retract(T, l, xi)
         return l2[0] - l[0]
 
     G = inv.landmark_world_jacobian(l)[0]
