@@ -12,12 +12,16 @@ Steps, each timed (``est.info["timing"]``):
    constant gyro bias (:mod:`graph.gyro_bias`) is estimated from the initial trajectory and
    removed from every motion factor (``settings.gyro_bias="alternate"``; not when
    ``config.gyro_bias`` is False, as for the EKFs), or estimated jointly
-   as a graph variable (``"joint"``, slower).
+   as a graph variable (``"joint"``, slower). With ``config.speed_scale`` the motion factors
+   carry a slowly varying speed scale of the linear velocities (:mod:`graph.speed_scale`: one
+   variable per interval, a random walk), estimated jointly with the poses; the alternating
+   bias step then reads the motions at the current scale.
 3. *optimise* with LM; then re-estimate the bias (and the smoothness sigma, relinearising the
    prior) from the solution, remove stereo factors whose residual exceeds
    ``settings.outlier_threshold_px`` (or whose point went behind the camera), and solve again.
-4. *marginals*: pose and landmark covariances (conditional on the estimated bias), converted
-   to the Estimate convention.
+4. *marginals*: pose and landmark covariances (conditional on the estimated bias; the speed
+   scales' uncertainty included: they stay in the graph), converted to the Estimate convention.
+   The scale estimate and its sigma are in ``est.info["speed_scale"]``.
 
 Accuracy and timing on real drives: docs/findings.md and benchmarks/smoother_timing.py.
 """
@@ -59,6 +63,7 @@ from vislam.graph.factors import (
     usable_rows,
 )
 from vislam.graph.gyro_bias import BIAS_KEY, GyroBiasModel, corrected_deltas, estimate_bias
+from vislam.graph.speed_scale import S, SpeedScaleModel, scale_values
 from vislam.ekf.numerics import NumericalGuard
 from vislam.ekf.runner import finish_estimate, prepare_sequence
 from vislam.graph.marginals import batch_marginals, linearise
@@ -238,6 +243,10 @@ class SmootherSolution:
     errors: list
     n_outliers: int
     n_cheirality: int
+    #: The speed-scale variables' model (``config.speed_scale``), else None, and their
+    #: estimates per interval (T-1,); ``deltas`` are then the motions at these scales.
+    scale_model: SpeedScaleModel | None = None
+    speed_scale: np.ndarray | None = None
     #: (WhitenedSystem, LandmarksEliminated) at ``values``, once computed (:meth:`linearised`)
     _linearised: tuple | None = dataclasses.field(default=None, repr=False, compare=False)
 
@@ -343,6 +352,10 @@ def _solve(
     motion = deltas
     # config.gyro_bias=False (a model saying the data has none, --no-gyro-bias): none here
     # either, as in the EKFs.
+    scale = None  # the speed-scale variables (config.speed_scale)
+    if config.speed_scale:
+        twists, tau = interval_twists(cleaned, config.velocity_pairing)
+        scale = SpeedScaleModel.create(twists, tau, config.speed_scale_sigma, config.speed_scale_walk)
     if settings.gyro_bias != "off" and config.gyro_bias:
         twists, tau = interval_twists(cleaned, config.velocity_pairing)
         model = GyroBiasModel.create(twists, tau, config.gyro_bias_sigma)
@@ -351,7 +364,9 @@ def _solve(
         else:
             b_hat = estimate_bias(poses0, deltas, model.D, motion_covs, config.gyro_bias_sigma)
             motion = corrected_deltas(deltas, model.D, b_hat)
-    problem = build_graph(poses0, landmarks0, rows, motion, noise, bias, smoothness)
+            if scale is not None:
+                scale.corrections = _bias_corrections(model.D, b_hat)
+    problem = build_graph(poses0, landmarks0, rows, motion, noise, bias, smoothness, scale)
     timing["build_s"] += time.perf_counter() - tick
 
     iterations: list[int] = []
@@ -384,7 +399,13 @@ def _solve(
         final_keep = np.zeros(len(rows), dtype=bool)
         final_keep[np.flatnonzero(good)[multi]] = True
         if b_hat is not None:  # the bias step of the alternating scheme
-            b_hat = estimate_bias(poses, deltas, model.D, motion_covs, config.gyro_bias_sigma, b_hat)
+            if scale is None:
+                b_hat = estimate_bias(poses, deltas, model.D, motion_covs, config.gyro_bias_sigma, b_hat)
+            else:  # the motions at the current speed scales
+                scaled = dataclasses.replace(scale, corrections=None).deltas(
+                    scale_values(values, scale.n_variables))
+                b_hat = estimate_bias(poses, scaled, model.D, motion_covs, config.gyro_bias_sigma, b_hat)
+                scale.corrections = _bias_corrections(model.D, b_hat)
             motion = corrected_deltas(deltas, model.D, b_hat)
         elif final_keep.all() and len(rows) == len(problem.rows):
             # nothing to reject: done, or the same graph continued to the final stopping rule
@@ -399,15 +420,23 @@ def _solve(
         rows = rows.subset(final_keep)
         if bias is not None:
             bias.initial = np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
+        if scale is not None:
+            scale.initial = scale_values(values, scale.n_variables)
         if smoothness is not None:  # re-measured on the better trajectory
             smoothness = _twist_smoothness(poses, cleaned.dt, unconstrained_intervals(rows, T),
                                            smoothness.exact)
-        problem = build_graph(poses, landmarks, rows, motion, noise, bias, smoothness)
+        problem = build_graph(poses, landmarks, rows, motion, noise, bias, smoothness, scale)
         timing["build_s"] += time.perf_counter() - tick
     report(3, 4)
 
     gyro_bias = b_hat if bias is None else np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
     twist, tau = interval_twists(cleaned, config.velocity_pairing)
+    speed_scale = None
+    if scale is not None:  # the motions the factors use at the solution: at the estimated scales
+        s_hat = scale_values(values, scale.n_variables)
+        speed_scale = scale.per_interval(s_hat)
+        motion = scale.deltas(s_hat)
+        deltas = motion
     return SmootherSolution(
         cleaned=cleaned, cleaning=cleaning, problem=problem, values=values,
         poses=poses_from_values(values, T),
@@ -417,8 +446,30 @@ def _solve(
         n_smoothness=0 if smoothness is None else int(np.count_nonzero(smoothness.gaps)),
         gyro_bias=gyro_bias, bias_model=bias, rejected=rejected, source=source,
         timing=timing, iterations=iterations, errors=errors, n_outliers=n_outliers,
-        n_cheirality=n_cheirality,
+        n_cheirality=n_cheirality, scale_model=scale, speed_scale=speed_scale,
     )
+
+
+def _bias_corrections(D: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """``Exp(-D_k b)`` (T-1, 4, 4): what removes the bias from each interval's motion."""
+    return np.stack([gtsam.Pose3.Expmap(-Dk @ bias).matrix() for Dk in D]) if len(D) \
+        else np.zeros((0, 4, 4))
+
+
+def _speed_scale_info(s: np.ndarray, cov: np.ndarray | None) -> dict:
+    """``info["speed_scale"]``: the speed-scale estimates (relative: 0.01 is 1 %) of the first
+    and last interval, their mean over the variables, extremes, and 1-sd where the marginals
+    were computed (None otherwise)."""
+    n = s.size
+    sd = None if cov is None else np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return {
+        "n_variables": int(n),
+        "first": float(s[0]), "final": float(s[-1]), "mean": float(np.mean(s)),
+        "min": float(np.min(s)), "max": float(np.max(s)),
+        "sigma_first": None if sd is None else float(sd[0]),
+        "sigma_final": None if sd is None else float(sd[-1]),
+        "sigma_mean": None if cov is None else float(np.sqrt(max(np.sum(cov), 0.0)) / n),
+    }
 
 
 def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
@@ -438,7 +489,12 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
         graph, solution = (problem.graph, sol.values) if sol.bias_model is None else fix_bias(
             problem, sol.values, sol.deltas, sol.noise, sol.bias_model)
         graph = gaussian_stereo(graph, rows, 1 + len(sol.deltas), sol.noise)
-        est.pose_cov, est.landmark_cov = batch_marginals(graph, solution, T, problem.landmark_tracks, M)
+        if sol.scale_model is None:
+            est.pose_cov, est.landmark_cov = batch_marginals(graph, solution, T, problem.landmark_tracks, M)
+        else:
+            est.pose_cov, est.landmark_cov, scale_cov = batch_marginals(
+                graph, solution, T, problem.landmark_tracks, M,
+                others=[S(i) for i in range(sol.scale_model.n_variables)])
         timing["marginals_s"] = time.perf_counter() - tick
     report(4, 4)
 
@@ -449,6 +505,8 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
     first = cleaned.track_first_frame()[problem.landmark_tracks]
     est.n_initialised = np.bincount(first, minlength=T).astype(np.int64)
     cleaning = dict(sol.cleaning)
+    speed_scale = None if sol.scale_model is None else _speed_scale_info(
+        scale_values(sol.values, sol.scale_model.n_variables), scale_cov if settings.compute_marginals else None)
     est.info = {
         "estimator": "smoother",
         "init": sol.source,
@@ -459,6 +517,7 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
         "initial_error": sol.errors[0][0],
         "final_error": sol.errors[-1][1],
         "gyro_bias": None if sol.gyro_bias is None else sol.gyro_bias.tolist(),
+        "speed_scale": speed_scale,
         "n_landmarks": int(problem.landmark_tracks.size),
         "n_stereo_factors": int(len(rows)),
         "n_outliers_removed": sol.n_outliers,
