@@ -203,7 +203,9 @@ class LandmarksEliminated:
             if int(key) not in where:
                 raise EstimationError(f"marginals: {key_name(int(key))} is not a variable of the graph")
             cols.append(np.arange(where[int(key)], where[int(key)] + d))
-        idx = np.concatenate(cols) if cols else np.zeros(0, dtype=np.int64)
+        if not cols:
+            return np.zeros((0, 0))
+        idx = np.concatenate(cols)
         return self.border.Sigma[np.ix_(idx, idx)].copy()
 
     def _arrow_solve(self, r_p: np.ndarray, r_b: np.ndarray | None) -> tuple:

@@ -21,7 +21,8 @@ Steps, each timed (``est.info["timing"]``):
    ``settings.outlier_threshold_px`` (or whose point went behind the camera), and solve again.
 4. *marginals*: pose and landmark covariances (conditional on the estimated bias; the speed
    scales' uncertainty included: they stay in the graph), converted to the Estimate convention.
-   The scale estimate and its sigma are in ``est.info["speed_scale"]``.
+   The scale estimate and its sigma are in ``est.info["speed_scale"]`` (only with
+   ``config.speed_scale``).
 
 Accuracy and timing on real drives: docs/findings.md and benchmarks/smoother_timing.py.
 """
@@ -461,6 +462,8 @@ def _speed_scale_info(s: np.ndarray, cov: np.ndarray | None) -> dict:
     and last interval, their mean over the variables, extremes, and 1-sd where the marginals
     were computed (None otherwise)."""
     n = s.size
+    if n == 0:  # a drive of one frame: no interval
+        return {"n_variables": 0}
     sd = None if cov is None else np.sqrt(np.maximum(np.diag(cov), 0.0))
     return {
         "n_variables": int(n),
@@ -517,7 +520,6 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
         "initial_error": sol.errors[0][0],
         "final_error": sol.errors[-1][1],
         "gyro_bias": None if sol.gyro_bias is None else sol.gyro_bias.tolist(),
-        "speed_scale": speed_scale,
         "n_landmarks": int(problem.landmark_tracks.size),
         "n_stereo_factors": int(len(rows)),
         "n_outliers_removed": sol.n_outliers,
@@ -528,6 +530,8 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
         "config": config.to_dict(),
         "marginals_computed": bool(settings.compute_marginals),
     }
+    if speed_scale is not None:  # only with config.speed_scale: the info is otherwise as before
+        est.info["speed_scale"] = speed_scale
     return finish_estimate(est, NumericalGuard("smoother", cleaned.timestamps),
                            check_cov=bool(settings.compute_marginals),
                            drop_unusable_cov=False)
