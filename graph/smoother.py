@@ -201,18 +201,26 @@ def _python_values_lm(problem: GraphProblem, settings: SmootherSettings,
                              else damped.eliminateSequential(ordering).optimize())
                 except RuntimeError:  # indeterminate: more damping
                     delta = None
-                model_change = error - linear.error(delta) if delta is not None else -1.0
-                if model_change >= 0.0:
-                    trial = values.retract(delta)
-                    trial_error = graph.error(trial)
-                    fidelity = (error - trial_error) / model_change if model_change > 0 else 0.0
-                    if fidelity > 1e-3 and np.isfinite(trial_error):
-                        new_values, new_error = trial, trial_error
-                        lam = lam / factor if fixed else lam * max(1.0 / 3.0, 1.0 - (2.0 * fidelity - 1.0) ** 3)
-                        factor = params.getlambdaFactor() if fixed else 2.0
-                        break
-                    if abs(error - trial_error) <= params.getAbsoluteErrorTol():
-                        break  # no change worth another lambda (GTSAM stops searching too)
+                if delta is not None:
+                    old_linear = linear.error(gtsam.VectorValues.Zero(delta))  # not `error`: robust kernels
+                    model_change = old_linear - linear.error(delta)
+                    if model_change >= 0.0:
+                        trial = values.retract(delta)
+                        trial_error = graph.error(trial)
+                        change = error - trial_error
+                        measured = model_change > np.finfo(float).eps * old_linear
+                        fidelity = change / model_change if measured else 0.0
+                        if (fidelity > 1e-3 or not measured) and np.isfinite(trial_error):
+                            new_values, new_error = trial, trial_error
+                            if fixed:
+                                lam /= factor
+                            else:
+                                lam *= max(1.0 / 3.0, 1.0 - (2.0 * fidelity - 1.0) ** 3)
+                                factor = 2.0
+                            lam = max(lam, params.getlambdaLowerBound())
+                            break
+                        if abs(change) < params.getRelativeErrorTol() * error:
+                            break  # too small a change to try more damping (GTSAM's rule)
                 lam *= factor
                 if not fixed:
                     factor *= 2.0
