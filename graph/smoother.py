@@ -586,7 +586,8 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
     est.n_initialised = np.bincount(first, minlength=T).astype(np.int64)
     cleaning = dict(sol.cleaning)
     speed_scale = None if sol.scale_model is None else _speed_scale_info(
-        scale_values(sol.values, sol.scale_model.n_variables), scale_cov if settings.compute_marginals else None)
+        scale_values(sol.values, sol.scale_model.n_variables),
+        scale_cov if settings.compute_marginals else None)
     est.info = {
         "estimator": "smoother",
         "init": sol.source,

@@ -44,7 +44,8 @@ from gtsam.symbol_shorthand import S
 
 from vislam.graph.pose_conversions import to_pose3, twist_to_gtsam
 
-__all__ = ["S", "SpeedScaleModel", "scaled_motion_error", "scaled_motion_factor", "scaled_deltas"]
+__all__ = ["S", "SpeedScaleModel", "scaled_motion_error", "scaled_motion_factor", "scaled_deltas",
+           "scale_values"]
 
 
 def scaled_motion_error(xi0: np.ndarray, dxi: np.ndarray, x0: gtsam.Pose3, x1: gtsam.Pose3,
