@@ -14,10 +14,14 @@ Factors:
   the stereo model of paper eq. 1-3 with ``v`` the mean of vL and vR (they carry the same
   information, DESIGN.md), so its sigma is ``pixel_sigma / sqrt(2)``; robust (Huber).
 * a prior on ``X(0)`` at the identity, and a weak prior on every landmark.
+* with ``config.speed_scale`` the motion factors are :mod:`graph.speed_scale`'s instead (a
+  speed-scale variable ``S(i)`` per interval, random walk), the scale's prior and walk after
+  the smoothness factors (before the gyro bias's prior, which stays last).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import gtsam
@@ -31,6 +35,7 @@ from vislam.ekf.sequence import Calibration, Sequence
 from vislam.graph.gyro_bias import BIAS_KEY, GyroBiasModel, biased_motion_factor, corrected_deltas
 from vislam.graph.pose_conversions import L, X, expmap_right_jacobian, to_pose3, twist_to_gtsam
 from vislam.graph.settings import SmootherSettings
+from vislam.graph.speed_scale import SpeedScaleModel
 from vislam.graph.twist_smoothness import add_smoothness_factors
 
 
@@ -234,11 +239,13 @@ class GraphProblem:
     values: gtsam.Values
     rows: StereoRows  # the stereo factors, in graph order after the motion factors
     landmark_tracks: np.ndarray  # tracks that have a landmark variable
+    scale: SpeedScaleModel | None = None  # the speed-scale variables' model, when in the graph
 
 
 def build_graph(poses: np.ndarray, landmarks: np.ndarray, rows: StereoRows,
                 deltas: np.ndarray, noise: NoiseModels, bias: GyroBiasModel | None = None,
-                smoothness: TwistSmoothness | None = None) -> GraphProblem:
+                smoothness: TwistSmoothness | None = None,
+                scale: SpeedScaleModel | None = None) -> GraphProblem:
     """The full batch graph: prior, motion, stereo and landmark-prior factors, with initial
     values ``poses`` (T, 4, 4) and ``landmarks`` (n_tracks, 3) (only the tracks in ``rows``).
 
@@ -246,12 +253,19 @@ def build_graph(poses: np.ndarray, landmarks: np.ndarray, rows: StereoRows,
     each of its gap intervals, after the landmark priors.
 
     With ``bias`` the motion factors share one gyro-bias variable (:mod:`graph.gyro_bias`),
-    which gets a zero-mean prior and is added last (factor and value)."""
+    which gets a zero-mean prior and is added last (factor and value).
+
+    With ``scale`` the motion factors are its speed-scaled ones (:mod:`graph.speed_scale`, on
+    the bias too with ``bias``; ``deltas`` then only counts the intervals) and its variables,
+    prior and random walk come after the smoothness factors."""
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), noise.pose_prior))
     for k, delta in enumerate(deltas):
-        if bias is None:
+        if scale is not None:
+            graph.add(scale.factor(k, noise.motion[k], X(k), X(k + 1),
+                                   None if bias is None else BIAS_KEY, None if bias is None else bias.D[k]))
+        elif bias is None:
             graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), to_pose3(delta), noise.motion[k]))
         else:
             graph.add(biased_motion_factor(X(k), X(k + 1), BIAS_KEY, delta, bias.D[k], noise.motion[k]))
@@ -266,10 +280,12 @@ def build_graph(poses: np.ndarray, landmarks: np.ndarray, rows: StereoRows,
     if smoothness is not None:
         add_smoothness_factors(graph, smoothness.gaps, smoothness.tau, smoothness.sigma,
                                None if smoothness.exact else values)
+    if scale is not None:
+        scale.add_variables(graph, values)
     if bias is not None:
         values.insert(BIAS_KEY, np.asarray(bias.initial, dtype=float))
         graph.add(gtsam.PriorFactorPoint3(BIAS_KEY, np.zeros(3), bias.prior))
-    return GraphProblem(graph, values, rows, tracks)
+    return GraphProblem(graph, values, rows, tracks, scale)
 
 
 def gaussian_stereo(graph: gtsam.NonlinearFactorGraph, rows: StereoRows, first: int,
@@ -310,12 +326,18 @@ def fix_bias(problem: GraphProblem, values: gtsam.Values, deltas: np.ndarray, no
     """The graph of ``problem`` (built with ``bias``) with the bias fixed at its value in
     ``values``: plain between-factors on the bias-corrected motions, no bias variable. Used for
     the marginals, which are then conditional on the estimated bias (its uncertainty, about
-    1e-4 rad/s over a drive, is neglected)."""
+    1e-4 rad/s over a drive, is neglected). With a speed scale (``problem.scale``) the motion
+    factors stay speed-scaled, their bias correction fixed, and the scale variables stay."""
     b = values.atPoint3(BIAS_KEY)
     n_motion = len(deltas)
     graph = gtsam.NonlinearFactorGraph()
     graph.add(problem.graph.at(0))
-    for k, delta in enumerate(corrected_deltas(deltas, bias.D, b)):
+    if problem.scale is not None:
+        fixed_scale = dataclasses.replace(problem.scale, corrections=np.stack(
+            [gtsam.Pose3.Expmap(-D @ b).matrix() for D in bias.D]) if n_motion else None)
+        for k in range(n_motion):
+            graph.add(fixed_scale.factor(k, noise.motion[k], X(k), X(k + 1)))
+    for k, delta in enumerate(corrected_deltas(deltas, bias.D, b) if problem.scale is None else ()):
         graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), to_pose3(delta), noise.motion[k]))
     for i in range(1 + n_motion, problem.graph.size() - 1):  # stereo, landmark priors, smoothness; not the bias prior
         graph.add(problem.graph.at(i))

@@ -15,6 +15,10 @@ long after its frame, a landmark that long after its last observation, marginali
 on what stays. Each is reported as it was when it left (its estimate and marginal covariance
 then): a smoother with a bounded delay and bounded cost per frame, between the EKFs (no delay)
 and the full smoothers (the whole drive).
+
+Neither estimates the gyro bias or the speed scale (``config.gyro_bias``, ``config.speed_scale``):
+their motion factors are the plain between-factors of the measured twists, whatever the
+configuration says (the batch smoother, :mod:`graph.smoother`, carries both).
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ that costs milliseconds per key (about 10 s for a 300-frame simulated drive).
 5. the border (an arrowhead): a landmark seen over a long stretch of the drive (a room's, a
    loop's seen at the start and at the end) would widen the band of every pose to its span,
    the whole drive at worst ((6T)^2 per step). Such landmarks, and any variable that is
-   neither a pose nor a landmark (the gyro bias), are not eliminated in step 2 but kept as a
+   neither a pose nor a landmark (the gyro bias, speed scales), are not eliminated in step 2 but kept as a
    dense border ``[S C; C^T D]``: the band of ``S`` is then set by the short tracks,
    ``X = S^-1 C`` costs banded solves, ``Z = D - C^T X`` is small and dense, and the blocks
    asked for are ``S^-1``'s from step 3 plus a low-rank term: ``Sigma_pp = S^-1 + X Z^-1 X^T``
@@ -84,8 +84,12 @@ def _key_indices(keys) -> np.ndarray:
 
 
 def _key_dims(keys) -> np.ndarray:
-    """Each key's dimension: poses (``x``) 6, landmarks and the gyro bias 3."""
-    return np.where(_key_chars(keys) == "x", 6, 3) if len(keys) else np.zeros(0, dtype=np.int64)
+    """Each key's dimension: poses (``x``) 6, the speed scales (``s``, graph.speed_scale) 1,
+    landmarks and the gyro bias 3."""
+    if not len(keys):
+        return np.zeros(0, dtype=np.int64)
+    chars = _key_chars(keys)
+    return np.where(chars == "x", 6, np.where(chars == "s", 1, 3))
 
 
 def whitened_system(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
@@ -180,13 +184,29 @@ class LandmarksEliminated:
         return self.H_lp.shape[0]
 
     def other_covariance(self, key: int) -> np.ndarray:
-        """The marginal covariance (3, 3) of a variable of ``H`` that is neither a pose nor a
-        landmark (the gyro bias), from the border (step 5 of the module docstring)."""
+        """The marginal covariance (d, d) of a variable of ``H`` that is neither a pose nor a
+        landmark (the gyro bias: 3, a speed scale: 1), from the border (step 5 of the module
+        docstring)."""
         keys = [] if self.border is None else self.border.other_keys
         if int(key) not in keys:
             raise EstimationError(f"marginals: {key_name(int(key))} is not a variable of the graph")
         o = int(self.border.other_offsets[keys.index(int(key))])
-        return self.border.Sigma[o:o + 3, o:o + 3].copy()
+        d = int(_key_dims([int(key)])[0])
+        return self.border.Sigma[o:o + d, o:o + d].copy()
+
+    def others_covariance(self, keys: list) -> np.ndarray:
+        """The joint marginal covariance of several such variables (their dimensions summed,
+        in ``keys`` order)."""
+        where = {} if self.border is None else dict(zip(self.border.other_keys, self.border.other_offsets))
+        cols = []
+        for key, d in zip(keys, _key_dims([int(k) for k in keys])):
+            if int(key) not in where:
+                raise EstimationError(f"marginals: {key_name(int(key))} is not a variable of the graph")
+            cols.append(np.arange(where[int(key)], where[int(key)] + d))
+        if not cols:
+            return np.zeros((0, 0))
+        idx = np.concatenate(cols)
+        return self.border.Sigma[np.ix_(idx, idx)].copy()
 
     def _arrow_solve(self, r_p: np.ndarray, r_b: np.ndarray | None) -> tuple:
         """``[S C; C^T D]^-1 [r_p; r_b]`` (``r_b`` None: zero) by the arrowhead's Schur
@@ -254,13 +274,15 @@ def eliminate_landmarks(H: sp.spmatrix, n_l: int, n_frames: int, tracks: np.ndar
                         other_keys: list | None = None,
                         long_tracks: np.ndarray | None = None) -> LandmarksEliminated:
     """:class:`LandmarksEliminated` of ``H`` (columns [landmarks of ``tracks``, sorted, 3 each;
-    ``n_frames`` poses, 6 each; the ``other_keys``, 3 each], ``n_l`` the landmark columns).
+    ``n_frames`` poses, 6 each; the ``other_keys``, 3 each or 1 for a speed scale], ``n_l`` the
+    landmark columns).
     The landmarks whose tracks are in ``long_tracks`` (default: :func:`border_landmarks`) and
     the other variables form the border. Raises :class:`ekf.errors.EstimationError` naming the
     variable where ``H`` is not positive definite."""
     H = sp.csr_matrix(H)
     tracks = np.sort(np.asarray(tracks, dtype=np.int64))
     other_keys = list(other_keys or [])
+    other_dims = _key_dims(other_keys).astype(np.int64)
     n_lm = n_l // 3
     n_p = 6 * n_frames
     if long_tracks is None:
@@ -292,9 +314,10 @@ def eliminate_landmarks(H: sp.spmatrix, n_l: int, n_frames: int, tracks: np.ndar
         # LAPACK's order of the failing leading minor: the border variable it falls in
         found = re.search(r"(\d+)", str(exc)) if isinstance(exc, np.linalg.LinAlgError) else None
         col = int(found.group(1)) - 1 if found else None
+        other_starts = 3 * n_long + np.cumsum(other_dims) - other_dims
         where = "" if col is None else " near " + key_name(
             L(int(tracks[long_mask][col // 3])) if col < 3 * n_long
-            else other_keys[min((col - 3 * n_long) // 3, len(other_keys) - 1)])
+            else other_keys[max(int(np.searchsorted(other_starts, col, side="right")) - 1, 0)])
         raise EstimationError(f"marginals: the information matrix of the long-lived landmarks "
                               f"and other variables is not positive definite{where} (an "
                               f"under-constrained variable)") from None
@@ -303,7 +326,7 @@ def eliminate_landmarks(H: sp.spmatrix, n_l: int, n_frames: int, tracks: np.ndar
     Y = scipy.linalg.solve_triangular(Z_factor[0], X_.T, lower=True, check_finite=False).T
     border = Border(
         tracks=tracks[long_mask], other_keys=other_keys,
-        other_offsets=3 * n_long + 3 * np.arange(len(other_keys)), C=C, H_bl=H_bl, X=X_, Y=Y,
+        other_offsets=3 * n_long + np.cumsum(other_dims) - other_dims, C=C, H_bl=H_bl, X=X_, Y=Y,
         Z_factor=Z_factor, Sigma=Sigma,
         log_det_Z=2.0 * float(np.sum(np.log(np.diag(Z_factor[0])))))
     inner.tracks, inner.border, inner.order = tracks, border, order
@@ -387,7 +410,7 @@ def _eliminate(H: sp.csr_matrix, n_l: int, n_frames: int,
 def information_solver(A: sp.spmatrix, keys: list, n_frames: int) -> LandmarksEliminated:
     """``H = A^T A`` of a whitened Jacobian ``A`` (:class:`WhitenedSystem`) whose columns are
     the variables ``keys``, sorted: the poses ``0..n_frames-1``, landmarks and any other
-    variables (3-dimensional: the gyro bias), which join the border; with its landmarks
+    variables (the gyro bias: 3-dimensional, speed scales: 1), which join the border; with its landmarks
     eliminated. ``.solve(B)`` is ``H^-1 B`` (the Laplace posterior covariance times ``B``)."""
     kinds = _key_chars(keys)
     is_pose, is_lm = kinds == "x", kinds == "l"
@@ -415,9 +438,11 @@ def information_solver(A: sp.spmatrix, keys: list, n_frames: int) -> LandmarksEl
 
 
 def schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
-                    tracks: np.ndarray, n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+                    tracks: np.ndarray, n_tracks: int, others: list | None = None) -> tuple:
     """Pose covariances (T, 6, 6) in the Estimate convention and landmark covariances
-    (n_tracks, 3, 3) (NaN for tracks not in ``tracks``); see the module docstring.
+    (n_tracks, 3, 3) (NaN for tracks not in ``tracks``); see the module docstring. With
+    ``others`` (keys of variables that are neither poses nor landmarks: the speed scales) also
+    their joint marginal covariance (:meth:`LandmarksEliminated.others_covariance`), third.
 
     Raises :class:`ekf.errors.EstimationError` naming the variable when the information
     matrix is not positive definite there. BLAS is pinned to one thread: the recursion works
@@ -428,6 +453,8 @@ def schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_f
                               "landmarks")
     with threadpool_limits(limits=1, user_api="blas"):
         pose_cov, landmark_cov = _schur_marginals(reduced, n_frames, n_tracks)
+    if others is not None:
+        return gtsam_cov_to_estimate(pose_cov), landmark_cov, reduced.others_covariance(others)
     return gtsam_cov_to_estimate(pose_cov), landmark_cov
 
 
@@ -590,9 +617,10 @@ def _landmark_covariances(A_g: np.ndarray, window: np.ndarray, slot: np.ndarray,
 
 
 def batch_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,
-                    tracks: np.ndarray, n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
-    """Pose (Estimate convention) and landmark marginal covariances of a solved graph."""
-    return schur_marginals(graph, values, n_frames, tracks, n_tracks)
+                    tracks: np.ndarray, n_tracks: int, others: list | None = None) -> tuple:
+    """Pose (Estimate convention) and landmark marginal covariances of a solved graph (and,
+    with ``others``, those variables' joint covariance: :func:`schur_marginals`)."""
+    return schur_marginals(graph, values, n_frames, tracks, n_tracks, others)
 
 
 def gtsam_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames: int,

@@ -12,12 +12,17 @@ Steps, each timed (``est.info["timing"]``):
    constant gyro bias (:mod:`graph.gyro_bias`) is estimated from the initial trajectory and
    removed from every motion factor (``settings.gyro_bias="alternate"``; not when
    ``config.gyro_bias`` is False, as for the EKFs), or estimated jointly
-   as a graph variable (``"joint"``, slower).
+   as a graph variable (``"joint"``, slower). With ``config.speed_scale`` the motion factors
+   carry a slowly varying speed scale of the linear velocities (:mod:`graph.speed_scale`: one
+   variable per interval, a random walk), estimated jointly with the poses; the alternating
+   bias step then reads the motions at the current scale.
 3. *optimise* with LM; then re-estimate the bias (and the smoothness sigma, relinearising the
    prior) from the solution, remove stereo factors whose residual exceeds
    ``settings.outlier_threshold_px`` (or whose point went behind the camera), and solve again.
-4. *marginals*: pose and landmark covariances (conditional on the estimated bias), converted
-   to the Estimate convention.
+4. *marginals*: pose and landmark covariances (conditional on the estimated bias; the speed
+   scales' uncertainty included: they stay in the graph), converted to the Estimate convention.
+   The scale estimate and its sigma are in ``est.info["speed_scale"]`` (only with
+   ``config.speed_scale``).
 
 Accuracy and timing on real drives: docs/findings.md and benchmarks/smoother_timing.py.
 """
@@ -59,6 +64,7 @@ from vislam.graph.factors import (
     usable_rows,
 )
 from vislam.graph.gyro_bias import BIAS_KEY, GyroBiasModel, corrected_deltas, estimate_bias
+from vislam.graph.speed_scale import S, SpeedScaleModel, scale_values
 from vislam.ekf.numerics import NumericalGuard
 from vislam.ekf.runner import finish_estimate, prepare_sequence
 from vislam.graph.marginals import batch_marginals, linearise
@@ -143,6 +149,8 @@ def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings,
     params.setAbsoluteErrorTol(settings.absolute_error_tol)
     params.setUseFixedLambdaFactor(settings.lm_damping == "fixed")
     params.setLinearSolverType(LINEAR_SOLVERS[settings.linear_solver])
+    if problem.scale is not None:  # Python factors: the loop that hands them Python-owned values
+        return _python_values_lm(problem, settings, params)
     try:
         optimizer = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, params)
         initial_error = optimizer.error()  # the graph's error at the values, as LM keeps it
@@ -154,6 +162,81 @@ def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings,
         raise EstimationError("smoother failed while optimising: the error is not finite "
                               "(a non-finite measurement or initial value)")
     return result, int(optimizer.iterations()), float(initial_error), final_error
+
+
+def _python_values_lm(problem: GraphProblem, settings: SmootherSettings,
+                      params: gtsam.LevenbergMarquardtParams) -> tuple[gtsam.Values, int, float, float]:
+    """:func:`_levenberg_marquardt` for a graph with one Python ``CustomFactor`` per interval
+    (the speed scale, :mod:`graph.speed_scale`): GTSAM's LM hands each Python factor a copy of
+    its whole ``Values`` at every evaluation (pybind11 copies a C++-owned argument), so an
+    iteration costs (intervals x variables): 4-5 s on a 1,224-frame KITTI drive against 0.3 s
+    here, where the graph is linearised and evaluated at Python-owned values (passed by
+    reference). The steps are GTSAM's LM's (``LevenbergMarquardtOptimizer::tryLambda``): the
+    linearisation damped by ``lambda I`` on every variable (Nielsen's rule or a fixed factor,
+    ``settings.lm_damping``; GTSAM's default lambda bounds and model-fidelity threshold), the
+    same stopping rule (``gtsam.checkConvergence``)."""
+    graph = problem.graph
+    solver = settings.linear_solver
+    lam, lam_max, factor = params.getlambdaInitial(), params.getlambdaUpperBound(), params.getlambdaFactor()
+    fixed = settings.lm_damping == "fixed"
+    try:
+        values = gtsam.Values(problem.values)
+        error = graph.error(values)
+        initial_error = error
+        ordering = gtsam.Ordering.ColamdNonlinearFactorGraph(graph)
+        # poses 6, speed scales 1, landmarks and the gyro bias 3
+        dims = {int(k): {"x": 6, "s": 1}.get(chr(gtsam.Symbol(k).chr()), 3) for k in values.keys()}
+        iterations = 0
+        while iterations < params.getMaxIterations() and np.isfinite(error) and error > params.getErrorTol():
+            linear = graph.linearize(values)
+            new_values, new_error = None, error
+            while lam < lam_max:
+                damped = linear.clone()
+                root = float(np.sqrt(lam))
+                for key, d in dims.items():
+                    damped.add(gtsam.JacobianFactor(key, root * np.eye(d), np.zeros(d),
+                                                    gtsam.noiseModel.Unit.Create(d)))
+                try:
+                    delta = (damped.optimize(ordering) if solver.startswith("multifrontal")
+                             else damped.eliminateSequential(ordering).optimize())
+                except RuntimeError:  # indeterminate: more damping
+                    delta = None
+                if delta is not None:
+                    old_linear = linear.error(gtsam.VectorValues.Zero(delta))  # not `error`: robust kernels
+                    model_change = old_linear - linear.error(delta)
+                    if model_change >= 0.0:
+                        trial = values.retract(delta)
+                        trial_error = graph.error(trial)
+                        change = error - trial_error
+                        measured = model_change > np.finfo(float).eps * old_linear
+                        fidelity = change / model_change if measured else 0.0
+                        if (fidelity > 1e-3 or not measured) and np.isfinite(trial_error):
+                            new_values, new_error = trial, trial_error
+                            if fixed:
+                                lam /= factor
+                            else:
+                                lam *= max(1.0 / 3.0, 1.0 - (2.0 * fidelity - 1.0) ** 3)
+                                factor = 2.0
+                            lam = max(lam, params.getlambdaLowerBound())
+                            break
+                        if abs(change) < params.getRelativeErrorTol() * error:
+                            break  # too small a change to try more damping (GTSAM's rule)
+                lam *= factor
+                if not fixed:
+                    factor *= 2.0
+            iterations += 1
+            if new_values is None:  # no step decreased the error: converged or stuck
+                break
+            converged = gtsam.checkConvergence(params, error, new_error)
+            values, error = new_values, new_error
+            if converged:
+                break
+    except RuntimeError as exc:
+        raise estimation_error(exc, "optimising") from None
+    if not np.isfinite(error):
+        raise EstimationError("smoother failed while optimising: the error is not finite "
+                              "(a non-finite measurement or initial value)")
+    return values, iterations, float(initial_error), float(error)
 
 
 def _optimize(optimizer: gtsam.LevenbergMarquardtOptimizer,
@@ -238,6 +321,10 @@ class SmootherSolution:
     errors: list
     n_outliers: int
     n_cheirality: int
+    #: The speed-scale variables' model (``config.speed_scale``), else None, and their
+    #: estimates per interval (T-1,); ``deltas`` are then the motions at these scales.
+    scale_model: SpeedScaleModel | None = None
+    speed_scale: np.ndarray | None = None
     #: (WhitenedSystem, LandmarksEliminated) at ``values``, once computed (:meth:`linearised`)
     _linearised: tuple | None = dataclasses.field(default=None, repr=False, compare=False)
 
@@ -343,6 +430,10 @@ def _solve(
     motion = deltas
     # config.gyro_bias=False (a model saying the data has none, --no-gyro-bias): none here
     # either, as in the EKFs.
+    scale = None  # the speed-scale variables (config.speed_scale)
+    if config.speed_scale:
+        twists, tau = interval_twists(cleaned, config.velocity_pairing)
+        scale = SpeedScaleModel.create(twists, tau, config.speed_scale_sigma, config.speed_scale_walk)
     if settings.gyro_bias != "off" and config.gyro_bias:
         twists, tau = interval_twists(cleaned, config.velocity_pairing)
         model = GyroBiasModel.create(twists, tau, config.gyro_bias_sigma)
@@ -351,7 +442,9 @@ def _solve(
         else:
             b_hat = estimate_bias(poses0, deltas, model.D, motion_covs, config.gyro_bias_sigma)
             motion = corrected_deltas(deltas, model.D, b_hat)
-    problem = build_graph(poses0, landmarks0, rows, motion, noise, bias, smoothness)
+            if scale is not None:
+                scale.corrections = _bias_corrections(model.D, b_hat)
+    problem = build_graph(poses0, landmarks0, rows, motion, noise, bias, smoothness, scale)
     timing["build_s"] += time.perf_counter() - tick
 
     iterations: list[int] = []
@@ -384,7 +477,13 @@ def _solve(
         final_keep = np.zeros(len(rows), dtype=bool)
         final_keep[np.flatnonzero(good)[multi]] = True
         if b_hat is not None:  # the bias step of the alternating scheme
-            b_hat = estimate_bias(poses, deltas, model.D, motion_covs, config.gyro_bias_sigma, b_hat)
+            if scale is None:
+                b_hat = estimate_bias(poses, deltas, model.D, motion_covs, config.gyro_bias_sigma, b_hat)
+            else:  # the motions at the current speed scales
+                scaled = dataclasses.replace(scale, corrections=None).deltas(
+                    scale_values(values, scale.n_variables))
+                b_hat = estimate_bias(poses, scaled, model.D, motion_covs, config.gyro_bias_sigma, b_hat)
+                scale.corrections = _bias_corrections(model.D, b_hat)
             motion = corrected_deltas(deltas, model.D, b_hat)
         elif final_keep.all() and len(rows) == len(problem.rows):
             # nothing to reject: done, or the same graph continued to the final stopping rule
@@ -399,15 +498,23 @@ def _solve(
         rows = rows.subset(final_keep)
         if bias is not None:
             bias.initial = np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
+        if scale is not None:
+            scale.initial = scale_values(values, scale.n_variables)
         if smoothness is not None:  # re-measured on the better trajectory
             smoothness = _twist_smoothness(poses, cleaned.dt, unconstrained_intervals(rows, T),
                                            smoothness.exact)
-        problem = build_graph(poses, landmarks, rows, motion, noise, bias, smoothness)
+        problem = build_graph(poses, landmarks, rows, motion, noise, bias, smoothness, scale)
         timing["build_s"] += time.perf_counter() - tick
     report(3, 4)
 
     gyro_bias = b_hat if bias is None else np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
     twist, tau = interval_twists(cleaned, config.velocity_pairing)
+    speed_scale = None
+    if scale is not None:  # the motions the factors use at the solution: at the estimated scales
+        s_hat = scale_values(values, scale.n_variables)
+        speed_scale = scale.per_interval(s_hat)
+        motion = scale.deltas(s_hat)
+        deltas = motion
     return SmootherSolution(
         cleaned=cleaned, cleaning=cleaning, problem=problem, values=values,
         poses=poses_from_values(values, T),
@@ -417,8 +524,32 @@ def _solve(
         n_smoothness=0 if smoothness is None else int(np.count_nonzero(smoothness.gaps)),
         gyro_bias=gyro_bias, bias_model=bias, rejected=rejected, source=source,
         timing=timing, iterations=iterations, errors=errors, n_outliers=n_outliers,
-        n_cheirality=n_cheirality,
+        n_cheirality=n_cheirality, scale_model=scale, speed_scale=speed_scale,
     )
+
+
+def _bias_corrections(D: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """``Exp(-D_k b)`` (T-1, 4, 4): what removes the bias from each interval's motion."""
+    return np.stack([gtsam.Pose3.Expmap(-Dk @ bias).matrix() for Dk in D]) if len(D) \
+        else np.zeros((0, 4, 4))
+
+
+def _speed_scale_info(s: np.ndarray, cov: np.ndarray | None) -> dict:
+    """``info["speed_scale"]``: the speed-scale estimates (relative: 0.01 is 1 %) of the first
+    and last interval, their mean over the variables, extremes, and 1-sd where the marginals
+    were computed (None otherwise)."""
+    n = s.size
+    if n == 0:  # a drive of one frame: no interval
+        return {"n_variables": 0}
+    sd = None if cov is None else np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return {
+        "n_variables": int(n),
+        "first": float(s[0]), "final": float(s[-1]), "mean": float(np.mean(s)),
+        "min": float(np.min(s)), "max": float(np.max(s)),
+        "sigma_first": None if sd is None else float(sd[0]),
+        "sigma_final": None if sd is None else float(sd[-1]),
+        "sigma_mean": None if cov is None else float(np.sqrt(max(np.sum(cov), 0.0)) / n),
+    }
 
 
 def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
@@ -438,7 +569,12 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
         graph, solution = (problem.graph, sol.values) if sol.bias_model is None else fix_bias(
             problem, sol.values, sol.deltas, sol.noise, sol.bias_model)
         graph = gaussian_stereo(graph, rows, 1 + len(sol.deltas), sol.noise)
-        est.pose_cov, est.landmark_cov = batch_marginals(graph, solution, T, problem.landmark_tracks, M)
+        if sol.scale_model is None:
+            est.pose_cov, est.landmark_cov = batch_marginals(graph, solution, T, problem.landmark_tracks, M)
+        else:
+            est.pose_cov, est.landmark_cov, scale_cov = batch_marginals(
+                graph, solution, T, problem.landmark_tracks, M,
+                others=[S(i) for i in range(sol.scale_model.n_variables)])
         timing["marginals_s"] = time.perf_counter() - tick
     report(4, 4)
 
@@ -449,6 +585,9 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
     first = cleaned.track_first_frame()[problem.landmark_tracks]
     est.n_initialised = np.bincount(first, minlength=T).astype(np.int64)
     cleaning = dict(sol.cleaning)
+    speed_scale = None if sol.scale_model is None else _speed_scale_info(
+        scale_values(sol.values, sol.scale_model.n_variables),
+        scale_cov if settings.compute_marginals else None)
     est.info = {
         "estimator": "smoother",
         "init": sol.source,
@@ -469,6 +608,8 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
         "config": config.to_dict(),
         "marginals_computed": bool(settings.compute_marginals),
     }
+    if speed_scale is not None:  # only with config.speed_scale: the info is otherwise as before
+        est.info["speed_scale"] = speed_scale
     return finish_estimate(est, NumericalGuard("smoother", cleaned.timestamps),
                            check_cov=bool(settings.compute_marginals),
                            drop_unusable_cov=False)
