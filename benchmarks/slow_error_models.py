@@ -3,6 +3,7 @@ drive cannot determine (issue 34; docs/findings.md, "A slow speed error the driv
 determine").
 
     .venv/bin/python benchmarks/slow_error_models.py [--seeds 1,10,14,22,25] [--frames 250]
+                                                     [--pixel-sigma PX] [--min-disparity PX]
 
 For each campaign drive (eval.campaign.draw_drive), the estimators of the campaign run under:
 
@@ -18,7 +19,9 @@ For each campaign drive (eval.campaign.draw_drive), the estimators of the campai
 * ``true + scale``: the true model with the 0.5 %-over-20-s speed-scale state added.
 
 Prints per drive and model each estimator's aligned ATE as a multiple of dead reckoning's and
-its mean pose NEES, and ekf-joint's final speed scale (+- its sigma).
+its mean pose NEES, and ekf-joint's final speed scale (+- its sigma). ``--pixel-sigma`` makes
+the drives again with that pixel noise (everything else as drawn); ``--min-disparity`` sets the
+estimators' (FilterConfig.min_disparity).
 """
 
 from __future__ import annotations
@@ -52,6 +55,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", default="1,10,14,22,25")
     parser.add_argument("--frames", type=int, default=250)
+    parser.add_argument("--pixel-sigma", type=float, default=None)
+    parser.add_argument("--min-disparity", type=float, default=None)
     args = parser.parse_args(argv)
     seeds = [int(s) for s in args.seeds.split(",")]
     with tempfile.TemporaryDirectory(prefix="vislam-slow-") as cache:
@@ -64,14 +69,21 @@ def main(argv: list[str] | None = None) -> int:
 
         print("per model: each estimator's aligned ATE / dead reckoning's (x) and mean pose "
               "NEES; s: ekf-joint's final speed scale +- sigma")
+        import dataclasses
+
+        settings = FilterConfig() if args.min_disparity is None else FilterConfig(
+            min_disparity=args.min_disparity)
         for seed in seeds:
             drive = draw_drive(seed, args.frames)
+            if args.pixel_sigma is not None:
+                drive = dataclasses.replace(drive, sim=dataclasses.replace(
+                    drive.sim, pixel_sigma=args.pixel_sigma))
             result = drive.simulate()
             with tempfile.TemporaryDirectory() as folder:
                 bs = bench_sequence(write_simulation(result, folder, drive.sim.name)["data"])
                 print(f"drive {seed}: {drive.describe()}", flush=True)
                 for name, model in _models(drive, result, bs.sequence).items():
-                    (b,) = apply_model_to([bs], model, FilterConfig(), "config")
+                    (b,) = apply_model_to([bs], model, settings, "config")
                     study = run_drive(list(ESTIMATORS), b)
                     base = study.scores[BASELINE]["ate_aligned_m"]
                     cells = []
