@@ -62,19 +62,31 @@ def corrected_deltas(deltas: np.ndarray, D: np.ndarray, bias: np.ndarray) -> np.
         if len(deltas) else np.zeros((0, 4, 4))
 
 
+def relative_motion_error(P: gtsam.Pose3, x0: gtsam.Pose3, x1: gtsam.Pose3,
+                          H: list | None = None) -> tuple[np.ndarray, gtsam.Pose3, np.ndarray | None]:
+    """``e = Log(P^-1 x0^-1 x1)`` of a motion factor whose measured relative motion is ``P``;
+    ``(e, R, J_log)`` with ``R = P^-1 x0^-1 x1`` and, when ``H`` is a list, ``J_log`` the Log's
+    derivative at ``e`` and the Jacobians wrt ``x0`` and ``x1`` appended to ``H`` (module
+    docstring)."""
+    between = x0.between(x1)
+    R = P.between(between)
+    e = gtsam.Pose3.Logmap(R)
+    if H is None:
+        return e, R, None
+    J_log = gtsam.Pose3.LogmapDerivative(e)
+    H.append(-J_log @ between.inverse().AdjointMap())
+    H.append(J_log)
+    return e, R, J_log
+
+
 def biased_motion_error(delta: gtsam.Pose3, D: np.ndarray, x0: gtsam.Pose3, x1: gtsam.Pose3,
                         bias: np.ndarray, H: list | None = None) -> np.ndarray:
     """The factor's error (6,) and, when ``H`` is a list, its three Jacobians appended to it
     (wrt ``x0``, ``x1`` and ``bias``; 6x6, 6x6, 6x3)."""
     Db = D @ bias
     P = delta.compose(gtsam.Pose3.Expmap(-Db))
-    between = x0.between(x1)
-    R = P.between(between)
-    e = gtsam.Pose3.Logmap(R)
+    e, R, J_log = relative_motion_error(P, x0, x1, H)
     if H is not None:
-        J_log = gtsam.Pose3.LogmapDerivative(e)
-        H.append(-J_log @ between.inverse().AdjointMap())
-        H.append(J_log)
         H.append(J_log @ R.inverse().AdjointMap() @ gtsam.Pose3.ExpmapDerivative(-Db) @ D)
     return e
 

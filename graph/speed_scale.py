@@ -42,6 +42,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import S
 
+from vislam.graph.gyro_bias import relative_motion_error
 from vislam.graph.pose_conversions import to_pose3, twist_to_gtsam
 
 __all__ = ["S", "SpeedScaleModel", "scaled_motion_error", "scaled_motion_factor", "scaled_deltas",
@@ -64,13 +65,8 @@ def scaled_motion_error(xi0: np.ndarray, dxi: np.ndarray, x0: gtsam.Pose3, x1: g
     else:
         C = correction
     P = A if C is None else A.compose(C)
-    between = x0.between(x1)
-    R = P.between(between)
-    e = gtsam.Pose3.Logmap(R)
+    e, R, J_log = relative_motion_error(P, x0, x1, H)
     if H is not None:
-        J_log = gtsam.Pose3.LogmapDerivative(e)
-        H.append(-J_log @ between.inverse().AdjointMap())
-        H.append(J_log)
         CR_inv = R.inverse().AdjointMap() if C is None else C.compose(R).inverse().AdjointMap()
         H.append((-J_log @ CR_inv @ gtsam.Pose3.ExpmapDerivative(xi) @ dxi)[:, None])
         if bias is not None:

@@ -94,15 +94,20 @@ def test_observation_jacobian_against_exact_model():
         assert np.allclose(H, numeric_jacobian(h, np.zeros(9)), rtol=1e-5, atol=1e-4)
 
 
-@pytest.mark.parametrize("use_bias", [False, True])
-def test_propagation_error_dynamics_against_exact_model(use_bias):
-    """xi_{k+1} = xi_k + tau B n - tau B_R xi_b: identity in xi (invariance), B for noise."""
+def error_dynamics_scene(use_bias: bool):
+    """``(T, landmarks (3, 3), tau, twist u, gyro bias or None)`` for the error-dynamics tests."""
     rng = np.random.default_rng(4)
     T = random_pose(rng)
     lm = rng.normal(scale=10, size=(3, 3))
-    tau = 0.1
     u = np.array([8.0, 0.3, -0.1, 0.05, -0.02, 0.2])
     b = rng.normal(scale=0.01, size=3) if use_bias else None
+    return T, lm, 0.1, u, b
+
+
+@pytest.mark.parametrize("use_bias", [False, True])
+def test_propagation_error_dynamics_against_exact_model(use_bias):
+    """xi_{k+1} = xi_k + tau B n - tau B_R xi_b: identity in xi (invariance), B for noise."""
+    T, lm, tau, u, b = error_dynamics_scene(use_bias)
     off = inv.landmark_offset(use_bias)
     n_x = off + 9
 

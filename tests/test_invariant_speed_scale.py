@@ -20,7 +20,8 @@ from vislam.eval.metrics import ate_rmse
 from vislam.eval.sim_config import SimConfig
 from vislam.eval.simulate import simulate
 from tests.numdiff import numeric_jacobian
-from tests.test_ekf_invariant import random_pose
+from tests.test_ekf_estimators import assert_same_as_dense
+from tests.test_ekf_invariant import error_dynamics_scene, random_pose
 
 #: The measured linear velocities are (1 + SPEED_ERROR) times the true ones.
 SPEED_ERROR = 0.01
@@ -76,12 +77,7 @@ def _exact_step(T, lm, b, s, u, tau):
 def test_error_dynamics_of_the_scale_against_the_exact_model(use_bias):
     """``xi' = (I + F S_e) xi + tau B n`` with ``F = twist_error_coupling``: the scale's column
     ``tau B_p v`` (and the bias's ``-tau B_R``) against finite differences."""
-    rng = np.random.default_rng(4)
-    T = random_pose(rng)
-    lm = rng.normal(scale=10, size=(3, 3))
-    tau = 0.1
-    u = np.array([8.0, 0.3, -0.1, 0.05, -0.02, 0.2])
-    b = rng.normal(scale=0.01, size=3) if use_bias else None
+    T, lm, tau, u, b = error_dynamics_scene(use_bias)
     s = 0.004
     off = inv.landmark_offset(use_bias, True)
     n_x = off + 9
@@ -226,13 +222,7 @@ def test_keep_landmarks_with_a_scale_state_equals_the_dense_form(param, gyro_bia
                          gyro_bias=gyro_bias)
     fast = run_filter(inv.InvariantEKF(), r.sequence, cfg)
     dense = run_filter(inv.InvariantEKF(textbook=True), r.sequence, cfg)
-    has = dense.has_landmark
-    assert has.sum() > 100 and np.array_equal(has, fast.has_landmark)
-    np.testing.assert_allclose(fast.poses, dense.poses, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(fast.pose_cov, dense.pose_cov, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(fast.landmarks[has], dense.landmarks[has], rtol=0, atol=1e-9)
-    scale = np.abs(dense.landmark_cov[has]).max(axis=(1, 2))[:, None, None]
-    np.testing.assert_array_less(np.abs(fast.landmark_cov[has] - dense.landmark_cov[has]) / scale, 1e-9)
+    assert_same_as_dense(fast, dense, 100)
     for key in ("speed_scale", "speed_scale_sigma_final"):
         assert abs(fast.info[key] - dense.info[key]) < 1e-12
     assert abs(fast.info["speed_scale"] - TRUE_SCALE) < 3 * fast.info["speed_scale_sigma_final"]
