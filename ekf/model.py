@@ -80,8 +80,9 @@ Using a model (:func:`apply_model`): the sequence gets the model's ``cam_T_imu``
 model's gyro bias subtracted from its angular velocities and its radial term removed from its
 pixels (:func:`ekf.camera.undistort_pixels`); the config gets the model's velocity
 and gyro sigmas, long-run pixel sigma and velocity pairing. A model with a bias leaves
-``config.gyro_bias`` (estimating a residual bias, from zero, with ``gyro_bias_sigma``) as the
-config says; a model saying "no bias" sets ``gyro_bias=False``. Ground truth must be converted
+``config.gyro_bias`` (estimating a residual bias, from zero) as the config says, with the
+model's ``gyro_bias_sigma`` as its prior where the model has one (the largest axis); a model
+saying "no bias" sets ``gyro_bias=False``. Ground truth must be converted
 with the same extrinsic (eval.groundtruth ``GroundTruth.with_extrinsic``).
 """
 
@@ -654,7 +655,8 @@ def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     track (the long-run sigma, module docstring), velocity pairing; ``gyro_bias=False`` when the
     model says the data has no bias (a model with a bias leaves ``gyro_bias`` as the config has
     it: the bias is subtracted from the data by :func:`model_sequence`, and a filter estimating
-    one starts from zero)."""
+    one starts from zero, with the model's ``gyro_bias_sigma`` (the largest axis) where it has
+    one)."""
     f = interval_sigma_factor(model.velocity_pairing)
     v_time = model.velocity_correlation_time or (1.0, 1.0, 1.0)
     g_time = model.gyro_correlation_time or (1.0, 1.0, 1.0)
@@ -670,6 +672,11 @@ def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     }
     if model.gyro_bias is None:
         changes["gyro_bias"] = False
+    elif model.gyro_bias_sigma is not None:
+        # The residual bias the filters and the smoother estimate (the model's is subtracted
+        # from the data) starts from the identified bias's own uncertainty, not the settings'
+        # generic prior: on a clean drive that prior lets sparse vision turn the heading.
+        changes["gyro_bias_sigma"] = max(max(model.gyro_bias_sigma), SIGMA_MIN)
     if model.speed_scale_sigma is not None:
         changes.update(speed_scale=True, speed_scale_sigma=model.speed_scale_sigma,
                        speed_scale_walk=model.speed_scale_walk or 0.0)

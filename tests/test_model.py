@@ -187,6 +187,9 @@ def test_config_reads_the_model_and_flags_override_it(tmp_path):
     assert cfg.velocity_sigma == (0.05, 0.06, 0.07) and cfg.gyro_sigma == (0.005, 0.004, 0.003)
     assert cfg.pixel_sigma == 0.3 and cfg.velocity_pairing == "next" and cfg.max_depth == 50.0
     assert cfg.gyro_bias is True  # a model with a bias leaves the bias state as configured
+    # ... whose prior is the model's own bias uncertainty (the largest axis), not the default
+    assert cfg.gyro_bias_sigma == 2e-4 and FilterConfig().gyro_bias_sigma == 0.01
+    assert model_config(FilterConfig(), _model(gyro_bias_sigma=None)).gyro_bias_sigma == 0.01
     cfg = filter_config_from_args(_args("--config", str(path), "--velocity-sigma", "0.2",
                                         "--velocity-pairing", "mean"))
     assert cfg.velocity_sigma == 0.2 and cfg.velocity_pairing == "mean"
@@ -198,6 +201,9 @@ def test_config_reads_the_model_and_flags_override_it(tmp_path):
     # a setting in both [filter] and [model] is ambiguous
     path.write_text("[filter]\npixel_sigma = 2.0\n" + GOOD)
     with pytest.raises(InputError, match="'pixel_sigma' is in both the \\[filter\\] and the \\[model\\]"):
+        filter_config_from_args(_args("--config", str(path)))
+    path.write_text("[filter]\ngyro_bias_sigma = 0.02\n" + GOOD)
+    with pytest.raises(InputError, match="'gyro_bias_sigma' is in both"):
         filter_config_from_args(_args("--config", str(path)))
     # a settings file without a model is read as before
     path.write_text("[filter]\npixel_sigma = 2.0\n")

@@ -177,6 +177,8 @@ def _merge_model(path, filter_table: dict, config: FilterConfig, model) -> Filte
     from vislam.ekf.model import MODEL_CONFIG_FIELDS, model_config
 
     fields = list(MODEL_CONFIG_FIELDS) + (["gyro_bias"] if model.gyro_bias is None else [])
+    if model.gyro_bias is not None and model.gyro_bias_sigma is not None:
+        fields.append("gyro_bias_sigma")
     if model.speed_scale_sigma is not None:
         fields += ["speed_scale", "speed_scale_sigma", "speed_scale_walk"]
     both = [k for k in fields if k in filter_table]
