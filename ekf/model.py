@@ -21,6 +21,10 @@ two disagree::
     gyro_bias_sigma = [1e-4, 1e-4, 1e-4]        # rad/s (optional, informative)
     radial_k1 = 0.01                            # lens radial term; absent: the data supports none
     radial_k1_sigma = 0.001                     # (optional, informative)
+    velocity_time_offset = 0.03                 # s, linear-velocity stamps late; absent: none
+    velocity_time_offset_sigma = 0.002          # s (optional, informative)
+    gyro_time_offset = -0.01                    # s, angular-velocity stamps late; absent: none
+    gyro_time_offset_sigma = 0.001              # s (optional, informative)
     velocity_pairing = "next"                   # "current", "next" or "mean"
     cam_T_imu = [                               # 4x4, rows; rigid
         [r11, r12, r13, tx], [r21, r22, r23, ty], [r31, r32, r33, tz], [0.0, 0.0, 0.0, 1.0],
@@ -76,7 +80,25 @@ The radial term. ``radial_k1`` is a lens distortion the file's pixels carry beyo
 ``K``: ``x_d = x (1 + k1 r^2)`` in normalised coordinates about the principal point
 (:mod:`ekf.camera`). It is absent when the data support none.
 
-Using a model (:func:`apply_model`): the sequence gets the model's ``cam_T_imu``, has the
+Time offsets. ``velocity_time_offset`` and ``gyro_time_offset`` (s, within
++-MAX_TIME_OFFSET) say how late the linear-velocity and the angular-velocity streams' stamps are
+against the camera's: a sample stamped ``t`` was measured at ``t - offset``, so the stream's
+value at camera time ``t`` is its value at stamp ``t + offset``. :func:`model_sequence`
+resamples each stream so (:func:`time_shifted`: linear interpolation in time over the stream's
+own stamps; beyond its first or last stamp the end sample is held, not extrapolated). Absent (or
+zero): the stream is taken as stamped, unchanged to the bit. ``*_time_offset_sigma`` are their
+standard deviations when identified. The offsets and ``velocity_pairing`` describe different
+things and do not fight: the pairing says which samples cover the interval ``[t_k, t_k+1]``
+once the streams are on the camera's clock ("current" sample k, "next" sample k+1, "mean" the
+two), a shift by whole or half intervals; the offset is the remaining continuous shift of the
+stamps, measured with the pairing the model has (the resampling comes first, then the pairing
+is applied to the resampled samples). A stream whose samples are in truth "mean"-paired (sample k
+the twist at ``t_k``) but read as "current" (sample k the twist of the interval's middle) looks
+half an interval late, and read as "next" half an interval early: an identified offset near
+half an interval is the sign of a pairing the model got wrong.
+
+Using a model (:func:`apply_model`): the sequence gets the model's ``cam_T_imu``, has its
+velocity streams moved onto the camera's clock by the model's time offsets (if any), the
 model's gyro bias subtracted from its angular velocities and its radial term removed from its
 pixels (:func:`ekf.camera.undistort_pixels`); the config gets the model's velocity
 and gyro sigmas, long-run pixel sigma and velocity pairing. A model with a bias leaves
@@ -141,6 +163,8 @@ MAX_LOG_SIGMA_SD = 10.0
 #: Largest sd of a log sigma that widens a determined sigma: graph.parameter_uncertainty's
 #: UNDETERMINED_LOG_SD (above it a level is undetermined and not widened).
 MAX_WIDENED_LOG_SD = 0.15
+#: Largest stream time offset accepted (s), as the simulator's (eval.sim_config).
+MAX_TIME_OFFSET = 1.0
 #: Longest ``source`` text.
 MAX_SOURCE_CHARS = 10_000
 #: FilterConfig fields a model sets (``gyro_bias`` only when the model says "no bias").
@@ -213,6 +237,25 @@ def _check_radial(value: Any) -> float:
 
 def _check_radial_sigma(value: Any) -> float:
     return sigma(1e3).check(value)
+
+
+def _check_time_offset(value: Any) -> float:
+    return _number(value, Rule("float", -MAX_TIME_OFFSET, MAX_TIME_OFFSET),
+                   f"a number of seconds within +-{MAX_TIME_OFFSET:g} (positive: the stream's "
+                   "stamps late against the camera's; absent: none)")
+
+
+def _check_time_offset_sigma(value: Any) -> float:
+    return _number(value, sigma(MAX_TIME_OFFSET),
+                   f"a positive number of seconds from {SIGMA_MIN:g} to {MAX_TIME_OFFSET:g}")
+
+
+def _number(value: Any, rule: Rule, what: str) -> float:
+    """One number allowed by ``rule``; ValueError "must be ..., got ..." otherwise."""
+    try:
+        return float(rule.check(value))
+    except ValueError:
+        raise ValueError(f"must be {what}, got {show_value(value)}") from None
 
 
 def _check_extrinsic_sigma(value: Any) -> tuple[float, ...]:
@@ -292,6 +335,10 @@ MODEL_CHECKS = {
     "gyro_bias_sigma": _check_bias_sigma,
     "radial_k1": _check_radial,
     "radial_k1_sigma": _check_radial_sigma,
+    "velocity_time_offset": _check_time_offset,
+    "velocity_time_offset_sigma": _check_time_offset_sigma,
+    "gyro_time_offset": _check_time_offset,
+    "gyro_time_offset_sigma": _check_time_offset_sigma,
     "velocity_pairing": _check_pairing,
     "cam_T_imu": _check_matrix,
     "cam_T_imu_sigma": _check_extrinsic_sigma,
@@ -355,6 +402,16 @@ class Model:
     radial_k1: float | None = None
     #: Standard deviation of the identified radial term, if known.
     radial_k1_sigma: float | None = None
+    #: How late the linear-velocity stream's stamps are against the camera's (s; a sample
+    #: stamped t was measured at t - offset), or None when the data support none (zero is
+    #: stored as None). model_sequence resamples the stream onto the camera's clock.
+    velocity_time_offset: float | None = None
+    #: Standard deviation of the identified velocity_time_offset (s), if known.
+    velocity_time_offset_sigma: float | None = None
+    #: The same for the angular-velocity (gyro) stream.
+    gyro_time_offset: float | None = None
+    #: Standard deviation of the identified gyro_time_offset (s), if known.
+    gyro_time_offset_sigma: float | None = None
     #: Integrated correlation time of the pixel errors along a track (frames, >= 1), or None
     #: when the data support none (independent errors).
     pixel_correlation_time: float | None = None
@@ -391,11 +448,16 @@ class Model:
         for key in ("gyro_bias", "gyro_bias_sigma", "radial_k1", "radial_k1_sigma",
                     "pixel_correlation_time", "velocity_correlation_time",
                     "gyro_correlation_time", "cam_T_imu_sigma", "velocity_sigma_log_sd",
-                    "gyro_sigma_log_sd", "speed_scale_sigma", "speed_scale_walk"):
+                    "gyro_sigma_log_sd", "speed_scale_sigma", "speed_scale_walk",
+                    "velocity_time_offset", "velocity_time_offset_sigma", "gyro_time_offset",
+                    "gyro_time_offset_sigma"):
             if values[key] is None:
                 del values[key]
         for name, value in _check_values(values, "model setting").items():
             object.__setattr__(self, name, value)
+        for key in ("velocity_time_offset", "gyro_time_offset"):
+            if getattr(self, key) == 0.0:  # absent when zero: one representation of "none"
+                object.__setattr__(self, key, None)
         file_values = self.file if self.file is not None else {}
         if not isinstance(file_values, Mapping):
             raise InputError(f"model setting 'file' must be a table of the file's values, got "
@@ -477,7 +539,8 @@ class Model:
                  "# (m/s, rad/s) and their correlation times (frames, absent: none), pixel",
                  "# sigma (px) and its correlation time along a track",
                  "# (frames, absent: none), gyro bias (rad/s, absent: none), radial lens term",
-                 "# (absent: none), velocity pairing, cam_T_imu (rows) and its sigmas",
+                 "# (absent: none), the velocity and gyro streams' time offsets (s, stamps late",
+                 "# against the camera's; absent: none), velocity pairing, cam_T_imu (rows) and its sigmas",
                  "# (translation m, then rotation rad); noise_undetermined names the levels the",
                  "# drive cannot determine (their values are conservative, not estimates).",
                  "[model]"]
@@ -590,13 +653,33 @@ def with_extrinsic(seq, cam_T_imu: np.ndarray):
         seq.calibration, cam_T_imu=np.array(cam_T_imu, dtype=float)))
 
 
+def time_shifted(timestamps: np.ndarray, values: np.ndarray, offset: float) -> np.ndarray:
+    """A stream (T, n) stamped ``timestamps`` (T,) whose stamps are ``offset`` s late, on the
+    camera's clock: row k is the stream's value at stamp ``timestamps[k] + offset``, linearly
+    interpolated between the stream's own stamps; before its first or after its last stamp the
+    end sample is held (no extrapolation: an end frame's error is at most the stream's change
+    over ``offset``, where extrapolating would double its noise)."""
+    t = np.asarray(timestamps, dtype=float)
+    v = np.asarray(values, dtype=float)
+    q = t + float(offset)
+    return np.stack([np.interp(q, t, v[:, j]) for j in range(v.shape[1])], axis=1)
+
+
 def model_sequence(seq, model: Model):
-    """``seq`` with the model's extrinsic as ``calibration.cam_T_imu``, the model's gyro
+    """``seq`` with the model's extrinsic as ``calibration.cam_T_imu``, its linear and angular
+    velocities moved onto the camera's clock by the model's time offsets (if any,
+    :func:`time_shifted`; the pairing then applies to the moved samples), the model's gyro
     bias (if any) subtracted from the angular velocities and its radial term (if any) removed
     from the pixels. Apply once per sequence."""
     seq = with_extrinsic(seq, model.cam_T_imu)
     if model.radial_k1 is not None:
         seq = without_radial(seq, model.radial_k1)
+    if model.velocity_time_offset is not None:
+        seq = dataclasses.replace(seq, linear_velocity=time_shifted(
+            seq.timestamps, seq.linear_velocity, model.velocity_time_offset))
+    if model.gyro_time_offset is not None:
+        seq = dataclasses.replace(seq, angular_velocity=time_shifted(
+            seq.timestamps, seq.angular_velocity, model.gyro_time_offset))
     if model.gyro_bias is None:
         return seq
     return dataclasses.replace(seq, angular_velocity=np.asarray(seq.angular_velocity, dtype=float)

@@ -100,7 +100,7 @@ accelerations are constant over a step; at rest before time 0, and driven on pas
 for a negative offset). The trajectory, the camera's stamps and ``true_velocities`` (the truth at
 the stamps) do not change; an offset of zero uses the unshifted twists themselves, so the drive
 is the same to the byte. The offsets are recorded in ``SimResult.config``, in the true model's
-``source`` and in ``NAME_landmarks.npz`` (eval.sim_files).
+keys (``velocity_time_offset``, ``gyro_time_offset``: ekf.model) and ``source``, and in ``NAME_landmarks.npz`` (eval.sim_files).
 
 ``noise_free=True`` zeroes every noise (pixels, velocities, gyro bias). The random streams of
 the trajectory, the landmarks, the tracks, the velocity noise and the pixel noise are separate
@@ -236,7 +236,7 @@ def true_model(result: SimResult):
     seed_text = f"seed {config.seed}, {config.n_frames} frames"
     for what, key in (("linear-velocity", "velocity_time_offset"),
                       ("angular-velocity", "gyro_time_offset")):
-        if getattr(config, key):  # not a model key yet: the true value in words
+        if getattr(config, key):  # the model's key below, and in words here
             seed_text += f", {what} stamps late by {getattr(config, key):.6g} s ({key})"
     return Model(
         velocity_sigma=sig(config.velocity_sigma),
@@ -248,6 +248,8 @@ def true_model(result: SimResult):
         radial_k1=config.radial_k1 or None,
         pixel_correlation_time=(1.0 + a) / (1.0 - a) if (a := config.pixel_correlation) else None,
         velocity_correlation_time=_velocity_correlation_time(config),
+        velocity_time_offset=config.velocity_time_offset or None,
+        gyro_time_offset=config.gyro_time_offset or None,
         source=f"vislam simulate: the true model of {result.sequence.name} ({seed_text})",
         file={"cam_T_imu": result.sequence.calibration.cam_T_imu},
     )
