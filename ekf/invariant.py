@@ -97,7 +97,8 @@ from vislam.ekf.geometry import (
     so3_left_jacobian_inv,
     so3_log,
 )
-from vislam.ekf.prediction import se3_exp_single, se3_left_jacobian, so3_exp_and_left_jacobian
+from vislam.ekf.prediction import (se3_exp_single, se3_left_jacobian, so3_exp_and_left_jacobian,
+                                  twist_error_coupling)
 from vislam.ekf.kept_landmarks_invariant import InvariantKeptLandmarks
 from vislam.ekf.kept_landmarks import map_with_kept
 from vislam.ekf.driver import run_filter
@@ -193,23 +194,6 @@ def noise_jacobian(
     B[:6] = adjoint(T)
     B[off:, 3:] = (hat(landmarks) @ R).reshape(3 * K, 3)
     return B @ se3_left_jacobian(twist)
-
-
-def twist_error_coupling(
-    B: np.ndarray, tau: float, velocity: np.ndarray, gyro_bias: bool, speed_scale: bool
-) -> np.ndarray | None:
-    """``F = -tau B E(u)`` (n, m): the error transition is ``I + F S_e`` (module docstring),
-    ``B`` the noise Jacobian, ``velocity`` the measured linear velocity ``v``; its columns are
-    the bias's ``-tau B_R`` (3) and the speed scale's ``tau B_p v`` (1), each where configured.
-    None with neither."""
-    cols = []
-    if gyro_bias:
-        cols.append(-tau * B[:, 3:])
-    if speed_scale:
-        cols.append(tau * (B[:, :3] @ np.asarray(velocity, dtype=float))[:, None])
-    if not cols:
-        return None
-    return cols[0] if len(cols) == 1 else np.hstack(cols)
 
 
 def observation_jacobian(T: np.ndarray, q_cam: np.ndarray, cam_T_imu: np.ndarray, M: np.ndarray):

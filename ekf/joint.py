@@ -40,7 +40,6 @@ from vislam.ekf.geometry import adjoint, hat, se3_inv
 from vislam.ekf.kept_landmarks import KeptLandmarks, map_with_kept, oc_transport_rows
 from vislam.ekf.prediction import (
     se3_exp_single,
-    bias_transition,
     error_state_transition,
     twist_error_matrix,
     predict_mean,
@@ -138,20 +137,16 @@ class JointState:
     def predict(self, tau: float, u: np.ndarray, config: FilterConfig) -> None:
         """Paper eq. 11 on the pose (and bias) block; cross-covariances follow ``Phi``."""
         c = self.core
-        if config.speed_scale:  # the twist errors [b_g; s] (ekf.prediction.error_state_transition)
-            B = twist_error_matrix(u, config.gyro_bias, True)
-            errors = np.r_[self.bias, self.scale] if config.gyro_bias else np.array([self.scale])
+        if c > 6:  # the twist errors [b_g; s] where configured (ekf.prediction.error_state_transition)
+            B = twist_error_matrix(u, config.gyro_bias, config.speed_scale)
+            errors = np.r_[self.bias if config.gyro_bias else [], [self.scale] if config.speed_scale else []]
             u_c, Phi, _ = error_state_transition(tau, u, errors, B)
             Q = np.zeros((c, c))
             Q[:6, :6] = process_noise(tau, self.W)
             if config.gyro_bias:
                 Q[6:9, 6:9] = config.gyro_bias_walk**2 * tau * np.eye(3)
-            Q[-1, -1] = config.speed_scale_walk**2 * tau
-        elif config.gyro_bias:
-            u_c, Phi, _ = bias_transition(tau, u, self.bias)
-            Q = np.zeros((9, 9))
-            Q[:6, :6] = process_noise(tau, self.W)
-            Q[6:, 6:] = config.gyro_bias_walk**2 * tau * np.eye(3)
+            if config.speed_scale:
+                Q[-1, -1] = config.speed_scale_walk**2 * tau
         else:
             u_c = u
             Phi = prediction_jacobian(tau, u)

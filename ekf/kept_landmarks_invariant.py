@@ -25,7 +25,7 @@ import numpy as np
 
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.geometry import hat
-from vislam.ekf.prediction import se3_left_jacobian, so3_exp_and_left_jacobian
+from vislam.ekf.prediction import se3_left_jacobian, so3_exp_and_left_jacobian, twist_error_coupling
 from vislam.ekf.kept_landmarks import KeptLandmarks, landmark_blocks, solve_spd
 
 R_COLS = slice(3, 6)
@@ -53,11 +53,10 @@ class InvariantKeptLandmarks(KeptLandmarks):
         F = self.F
         if F_A is not None:  # H_j = F_j + F_j^b S_b, then A_j = H_j (I - F_A S_b)
             e = slice(6, 6 + F_A.shape[1])
-            n_bias = F_A.shape[1] - (scale_velocity is not None)
-            if n_bias:
-                F[:, 6:9] += (-tau * Bj[:, :, 3:]).reshape(-1, 3)
-            if scale_velocity is not None:
-                F[:, 6 + n_bias] += tau * (Bj[:, :, :3] @ scale_velocity).reshape(-1)
+            has_scale = scale_velocity is not None
+            F[:, e] += twist_error_coupling(Bj.reshape(-1, 6), tau,
+                                            scale_velocity if has_scale else np.zeros(3),
+                                            F_A.shape[1] > has_scale, has_scale)
             F[:, e] -= F @ F_A
         N_j = (tau * Bj @ W_chol).reshape(-1, 6)
         N_j = np.concatenate([N_j, np.zeros((N_j.shape[0], N_A.shape[1] - 6))], axis=1)

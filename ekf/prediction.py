@@ -13,7 +13,8 @@ Motion (paper eq. 4 and 11)::
 
 With a gyro-bias state ``b`` (rad/s, body frame) the corrected twist is ``u - B b`` with
 ``B = [0; I3]`` (6x3), and the pose perturbation picks up ``G db`` with
-``G = tau J_l(-tau (u - B b)) B``, ``J_l`` the left Jacobian of SE(3); the bias follows a random
+``G = tau J_l(-tau (u - B b)) B``, ``J_l`` the left Jacobian of SE(3)
+(:func:`error_state_transition` with ``B = GYRO_SELECT``); the bias follows a random
 walk of density ``sigma_walk`` (variance ``sigma_walk^2 tau`` per step).
 
 With a speed-scale state ``s`` (``config.speed_scale``: the linear velocity is off by a slowly
@@ -25,7 +26,8 @@ varying factor, ``v_true = (1 + s) v``) the same holds with one more column: the
 Public building blocks (also used by ``ekf/invariant.py``):
 :func:`paired_velocities`, :func:`motion_increment`, :func:`predict_mean`,
 :func:`prediction_jacobian`, :func:`process_noise`, :func:`predict_pose`,
-:func:`se3_left_jacobian` (closed form), :func:`bias_jacobian`, :func:`se3_exp_single`,
+:func:`se3_left_jacobian` (closed form), :func:`twist_error_matrix`,
+:func:`error_state_transition`, :func:`se3_exp_single`,
 :func:`so3_exp_and_left_jacobian`.
 """
 
@@ -55,12 +57,26 @@ def twist_error_matrix(u: np.ndarray, gyro_bias: bool, speed_scale: bool) -> np.
     return np.hstack(cols) if cols else np.zeros((6, 0))
 
 
+def twist_error_coupling(
+    B: np.ndarray, tau: float, velocity: np.ndarray, gyro_bias: bool, speed_scale: bool
+) -> np.ndarray | None:
+    """``F = -tau B E(u)`` (n, m), ``E(u)`` :func:`twist_error_matrix`: where the twist errors
+    act as twist noise (ekf.invariant's "imperfect IEKF"), the error transition is ``I + F
+    S_e``. ``B`` (n, 6) how twist noise moves each error row, ``velocity`` the measured linear
+    velocity ``v``; the columns are the bias's ``-tau B_R`` (3) and the speed scale's ``tau B_p
+    v`` (1), each where configured. None with neither."""
+    if not (gyro_bias or speed_scale):
+        return None
+    u = np.r_[np.asarray(velocity, dtype=float), np.zeros(3)]
+    return -tau * (B @ twist_error_matrix(u, gyro_bias, speed_scale))
+
+
 def error_state_transition(
     tau: float, u: np.ndarray, errors: np.ndarray, B: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Corrected twist ``u_c = u - B e``, the transition ``Phi = [[F, G], [0, I]]`` of the pose
     perturbation and the twist errors ``e`` (``G = tau J_l(-tau u_c) B``, module docstring) and
-    ``F``. Returns ``(u_c, Phi, F)``; with ``B = GYRO_SELECT`` it is :func:`bias_transition`."""
+    ``F``. Returns ``(u_c, Phi, F)``."""
     B = np.asarray(B, dtype=float)
     m = B.shape[1]
     u_c = np.asarray(u, dtype=float) - B @ np.asarray(errors, dtype=float)
@@ -208,26 +224,3 @@ def se3_left_jacobian_series(xi: np.ndarray, terms: int = 20) -> np.ndarray:
     for k in range(terms + 1, 1, -1):
         J = I + (A @ J) / k
     return J
-
-
-def bias_jacobian(tau: float, u_corrected: np.ndarray) -> np.ndarray:
-    """``G = d d_{k+1} / d b`` (6x3) for the gyro bias: ``tau J_l(-tau u_c) B``.
-
-    ``u_corrected = u - B b`` is the bias-corrected twist used in the mean prediction.
-    """
-    return tau * se3_left_jacobian(-tau * np.asarray(u_corrected, dtype=float)) @ GYRO_SELECT
-
-
-def bias_transition(
-    tau: float, u: np.ndarray, bias: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Corrected twist, 9x9 transition ``Phi = [[F, G], [0, I3]]`` of ``[d; db]`` and ``F``.
-
-    Returns ``(u_corrected, Phi, F)``.
-    """
-    u_c = np.asarray(u, dtype=float) - GYRO_SELECT @ np.asarray(bias, dtype=float)
-    F = prediction_jacobian(tau, u_c)
-    Phi = np.eye(9)
-    Phi[:6, :6] = F
-    Phi[:6, 6:] = bias_jacobian(tau, u_c)
-    return u_c, Phi, F
