@@ -32,7 +32,8 @@ from vislam.ekf.config import FilterConfig
 from vislam.ekf.conventions import estimate_cov_to_gtsam
 from vislam.ekf.geometry import se3_exp, se3_inv
 from vislam.ekf.sequence import Calibration, Sequence
-from vislam.graph.gyro_bias import BIAS_KEY, GyroBiasModel, biased_motion_factor, corrected_deltas
+from vislam.graph.gyro_bias import (BIAS_KEY, GyroBiasModel, bias_corrections, biased_motion_factor,
+                                    corrected_deltas)
 from vislam.graph.pose_conversions import L, X, expmap_right_jacobian, to_pose3, twist_to_gtsam
 from vislam.graph.settings import SmootherSettings
 from vislam.graph.speed_scale import SpeedScaleModel
@@ -333,8 +334,8 @@ def fix_bias(problem: GraphProblem, values: gtsam.Values, deltas: np.ndarray, no
     graph = gtsam.NonlinearFactorGraph()
     graph.add(problem.graph.at(0))
     if problem.scale is not None:
-        fixed_scale = dataclasses.replace(problem.scale, corrections=np.stack(
-            [gtsam.Pose3.Expmap(-D @ b).matrix() for D in bias.D]) if n_motion else None)
+        fixed_scale = dataclasses.replace(problem.scale, corrections=bias_corrections(bias.D, b)
+                                          if n_motion else None)
         for k in range(n_motion):
             graph.add(fixed_scale.factor(k, noise.motion[k], X(k), X(k + 1)))
     for k, delta in enumerate(corrected_deltas(deltas, bias.D, b) if problem.scale is None else ()):

@@ -56,6 +56,13 @@ def corrected_delta(delta: gtsam.Pose3, D: np.ndarray, bias: np.ndarray) -> gtsa
     return delta.compose(gtsam.Pose3.Expmap(-D @ np.asarray(bias, dtype=float)))
 
 
+def bias_corrections(D: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """``Exp(-D_k b)`` (T-1, 4, 4): what removes the bias ``b`` from each interval's motion."""
+    b = np.asarray(bias, dtype=float)
+    return np.stack([gtsam.Pose3.Expmap(-Dk @ b).matrix() for Dk in D]) if len(D) \
+        else np.zeros((0, 4, 4))
+
+
 def corrected_deltas(deltas: np.ndarray, D: np.ndarray, bias: np.ndarray) -> np.ndarray:
     """All relative motions (T-1, 4, 4) with the bias ``b`` removed."""
     return np.stack([corrected_delta(to_pose3(d), Dk, bias).matrix() for d, Dk in zip(deltas, D)]) \

@@ -63,7 +63,8 @@ from vislam.graph.factors import (
     unconstrained_intervals,
     usable_rows,
 )
-from vislam.graph.gyro_bias import BIAS_KEY, GyroBiasModel, corrected_deltas, estimate_bias
+from vislam.graph.gyro_bias import (BIAS_KEY, GyroBiasModel, bias_corrections, corrected_deltas,
+                                    estimate_bias)
 from vislam.graph.speed_scale import S, SpeedScaleModel, scale_values
 from vislam.ekf.numerics import NumericalGuard
 from vislam.ekf.runner import finish_estimate, prepare_sequence
@@ -184,8 +185,8 @@ def _python_values_lm(problem: GraphProblem, settings: SmootherSettings,
         error = graph.error(values)
         initial_error = error
         ordering = gtsam.Ordering.ColamdNonlinearFactorGraph(graph)
-        # poses 6, speed scales 1, landmarks and the gyro bias 3
-        dims = {int(k): {"x": 6, "s": 1}.get(chr(gtsam.Symbol(k).chr()), 3) for k in values.keys()}
+        zero = values.zeroVectors()  # each variable's dimension
+        dims = {int(k): zero.at(k).size for k in values.keys()}
         iterations = 0
         while iterations < params.getMaxIterations() and np.isfinite(error) and error > params.getErrorTol():
             linear = graph.linearize(values)
@@ -430,20 +431,19 @@ def _solve(
     motion = deltas
     # config.gyro_bias=False (a model saying the data has none, --no-gyro-bias): none here
     # either, as in the EKFs.
+    twist, tau = interval_twists(cleaned, config.velocity_pairing)
     scale = None  # the speed-scale variables (config.speed_scale)
     if config.speed_scale:
-        twists, tau = interval_twists(cleaned, config.velocity_pairing)
-        scale = SpeedScaleModel.create(twists, tau, config.speed_scale_sigma, config.speed_scale_walk)
+        scale = SpeedScaleModel.create(twist, tau, config.speed_scale_sigma, config.speed_scale_walk)
     if settings.gyro_bias != "off" and config.gyro_bias:
-        twists, tau = interval_twists(cleaned, config.velocity_pairing)
-        model = GyroBiasModel.create(twists, tau, config.gyro_bias_sigma)
+        model = GyroBiasModel.create(twist, tau, config.gyro_bias_sigma)
         if settings.gyro_bias == "joint":
             bias = model
         else:
             b_hat = estimate_bias(poses0, deltas, model.D, motion_covs, config.gyro_bias_sigma)
             motion = corrected_deltas(deltas, model.D, b_hat)
             if scale is not None:
-                scale.corrections = _bias_corrections(model.D, b_hat)
+                scale.corrections = bias_corrections(model.D, b_hat)
     problem = build_graph(poses0, landmarks0, rows, motion, noise, bias, smoothness, scale)
     timing["build_s"] += time.perf_counter() - tick
 
@@ -483,7 +483,7 @@ def _solve(
                 scaled = dataclasses.replace(scale, corrections=None).deltas(
                     scale_values(values, scale.n_variables))
                 b_hat = estimate_bias(poses, scaled, model.D, motion_covs, config.gyro_bias_sigma, b_hat)
-                scale.corrections = _bias_corrections(model.D, b_hat)
+                scale.corrections = bias_corrections(model.D, b_hat)
             motion = corrected_deltas(deltas, model.D, b_hat)
         elif final_keep.all() and len(rows) == len(problem.rows):
             # nothing to reject: done, or the same graph continued to the final stopping rule
@@ -508,7 +508,6 @@ def _solve(
     report(3, 4)
 
     gyro_bias = b_hat if bias is None else np.asarray(values.atPoint3(BIAS_KEY), dtype=float)
-    twist, tau = interval_twists(cleaned, config.velocity_pairing)
     speed_scale = None
     if scale is not None:  # the motions the factors use at the solution: at the estimated scales
         s_hat = scale_values(values, scale.n_variables)
@@ -526,12 +525,6 @@ def _solve(
         timing=timing, iterations=iterations, errors=errors, n_outliers=n_outliers,
         n_cheirality=n_cheirality, scale_model=scale, speed_scale=speed_scale,
     )
-
-
-def _bias_corrections(D: np.ndarray, bias: np.ndarray) -> np.ndarray:
-    """``Exp(-D_k b)`` (T-1, 4, 4): what removes the bias from each interval's motion."""
-    return np.stack([gtsam.Pose3.Expmap(-Dk @ bias).matrix() for Dk in D]) if len(D) \
-        else np.zeros((0, 4, 4))
 
 
 def _speed_scale_info(s: np.ndarray, cov: np.ndarray | None) -> dict:
