@@ -5,8 +5,9 @@ noise ``W = diag(sigma_v^2, sigma_g^2)`` per axis, the stereo pixel noise ``sigm
 constant gyro bias or none, and which velocity sample covers an interval. Ground truth is
 never used. Each EM iteration
 
-1. *E-step*: solves the smoother with the current model (:func:`graph.smoother.solve_smoother`)
-   and takes the Laplace approximation of the posterior: the MAP trajectory and landmarks, and
+1. *E-step*: solves the smoother with the current model (:func:`graph.smoother.solve_smoother`,
+   from the last E-step's solution: one round, its outlier test made there, its cameras kept
+   where the extrinsic moves) and takes the Laplace approximation of the posterior: the MAP trajectory and landmarks, and
    the marginal covariances of each pose and of each pair of consecutive poses
    (:func:`graph.marginals.pose_chain_covariances`, the Takahashi recursion);
 2. *M-step*: re-estimates each noise level from the expected squared residuals of its factors,

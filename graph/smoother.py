@@ -42,11 +42,13 @@ from vislam.ekf.config import FilterConfig
 from vislam.ekf.conventions import estimate_cov_to_gtsam
 from vislam.ekf.errors import EstimationError, InputError
 from vislam.ekf.estimate import Estimate
+from vislam.ekf.geometry import se3_inv
 from vislam.ekf.sequence import Sequence
 from vislam.ekf.estimators import SMOOTHER_INITIALISERS
 from vislam.graph.factors import (
     GraphProblem,
     NoiseModels,
+    StereoRows,
     TwistSmoothness,
     build_graph,
     cheirality_ok,
@@ -256,6 +258,17 @@ def _optimize(optimizer: gtsam.LevenbergMarquardtOptimizer,
             return optimizer.values()
 
 
+def _inliers(poses: np.ndarray, landmarks: np.ndarray, calib, rows: StereoRows,
+             settings: SmootherSettings, n_tracks: int) -> np.ndarray:
+    """Boolean (N,): the row's stereo residual is within ``outlier_threshold_px``, its depth at
+    least ``min_depth``, and its track keeps at least two such rows (the outlier test)."""
+    residual, depth = stereo_residuals(poses, landmarks, calib, rows)
+    good = (np.linalg.norm(residual, axis=1) <= settings.outlier_threshold_px) & (depth >= settings.min_depth)
+    keep = np.zeros(len(rows), dtype=bool)
+    keep[np.flatnonzero(good)[keep_multi_observed(rows.subset(good), n_tracks)]] = True
+    return keep
+
+
 def _twist_smoothness(poses: np.ndarray, tau: np.ndarray, gaps: np.ndarray,
                       exact: bool = False) -> TwistSmoothness | None:
     """The twist-smoothness prior for the gap intervals, its sigma measured on ``poses``
@@ -352,16 +365,33 @@ def solve_smoother(seq: Sequence, config: FilterConfig = FilterConfig(),
     """Build and solve the batch graph (steps 1-3 of the module docstring) without the
     marginals. ``initial_poses`` (T, 4, 4), when given, is the starting trajectory.
     ``warm_start``, a solution of the same drive under a nearby model (the previous EM
-    iteration's), gives the starting poses, landmarks and the stereo rows of the first round
-    (the outlier test then looks at every row again, so a row rejected before can come back):
-    LM starts next to its minimum instead of re-fighting the outliers."""
+    iteration's), gives the starting poses and landmarks: LM starts next to its minimum
+    instead of re-fighting the outliers. The outlier test looks at every row at the warm
+    start (so a row rejected before can come back) and one round is solved: the warm start
+    is the solution a first round would reach, so its test is the one that round would make
+    (the alternating bias step is taken there too). With ``rejection_rounds`` 0 the rows are
+    the warm start's, untested."""
     if warm_start is not None:
-        initial_poses = warm_start.poses
+        initial_poses = warm_start_poses(warm_start, seq.calibration.cam_T_imu)
     try:
         return _solve(seq, config, init=init, initial=initial, settings=settings,
                       progress=progress, initial_poses=initial_poses, warm_start=warm_start)
     except EstimationError as exc:
         raise named_error(exc, "smoother") from None
+
+
+def warm_start_poses(warm_start: "SmootherSolution", cam_T_imu: np.ndarray) -> np.ndarray:
+    """The starting poses ``world_T_imu`` (T, 4, 4) that a warm start gives a drive whose
+    extrinsic is ``cam_T_imu``: its cameras ``world_T_cam`` kept where vision put them
+    (``world_T_imu = world_T_cam cam_T_imu``), so that its landmarks project as they did; under
+    the warm start's own extrinsic, its poses. An EM step that moves the extrinsic by several
+    sigmas would otherwise start LM at thousands of times the minimum's error and the outlier
+    test at pixels shifted by the move."""
+    before = np.asarray(warm_start.cleaned.calibration.cam_T_imu, dtype=float)
+    now = np.asarray(cam_T_imu, dtype=float)
+    if np.array_equal(before, now):
+        return warm_start.poses
+    return warm_start.poses @ (se3_inv(before) @ now)
 
 
 def _solve(
@@ -410,8 +440,14 @@ def _solve(
     keep = in_front[rows.track]
     rejected += np.bincount(rows.frame[~keep], minlength=T)
     rows = rows.subset(keep)
-    candidates = rows  # what the outlier test looks at
-    if warm_start is not None:
+    n_outliers = 0
+    one_round = warm_start is not None and settings.rejection_rounds > 0
+    if one_round:  # the outlier test a first round would make, made at the warm start
+        inlier = _inliers(poses0, landmarks0, calib, rows, settings, M)
+        n_outliers += int(np.sum(~inlier))
+        rejected += np.bincount(rows.frame[~inlier], minlength=T)
+        rows = rows.subset(inlier)
+    elif warm_start is not None:  # no outlier round: the warm start's rows, as they were
         before = warm_start.problem.rows
         kept = np.isin(rows.frame.astype(np.int64) * M + rows.track,
                        before.frame.astype(np.int64) * M + before.track)
@@ -449,10 +485,9 @@ def _solve(
 
     iterations: list[int] = []
     errors: list[tuple[float, float]] = []
-    n_outliers = 0
     # The rounds before the last only find the outliers: a looser stopping rule there.
     rejection_tol = max(settings.relative_error_tol, settings.rejection_relative_error_tol)
-    last_round = int(settings.rejection_rounds)
+    last_round = 0 if one_round else int(settings.rejection_rounds)
     for round_ in range(last_round + 1):
         tick = time.perf_counter()
         values, n_iter, e0, e1 = _levenberg_marquardt(
@@ -466,16 +501,7 @@ def _solve(
         tick = time.perf_counter()
         poses = poses_from_values(values, T)
         landmarks = landmarks_from_values(values, problem.landmark_tracks, M)
-        if warm_start is not None and round_ == 0:  # every row is tested again
-            missing = ~np.all(np.isfinite(landmarks), axis=1)
-            landmarks[missing] = landmarks0[missing]
-            rows = candidates
-        residual, depth = stereo_residuals(poses, landmarks, calib, rows)
-        good = (np.linalg.norm(residual, axis=1) <= settings.outlier_threshold_px) & (depth >= settings.min_depth)
-        good_rows = rows.subset(good)
-        multi = keep_multi_observed(good_rows, M)
-        final_keep = np.zeros(len(rows), dtype=bool)
-        final_keep[np.flatnonzero(good)[multi]] = True
+        final_keep = _inliers(poses, landmarks, calib, rows, settings, M)
         if b_hat is not None:  # the bias step of the alternating scheme
             if scale is None:
                 b_hat = estimate_bias(poses, deltas, model.D, motion_covs, config.gyro_bias_sigma, b_hat)

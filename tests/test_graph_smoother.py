@@ -122,6 +122,66 @@ def test_nothing_to_reject_still_ends_at_the_final_tolerance(noisy):
                           init="dead-reckoning")
     assert same.iterations == one.iterations and np.array_equal(same.poses, one.poses)
 
+def _row_keys(rows, n_tracks):
+    return set((rows.frame.astype(np.int64) * n_tracks + rows.track).tolist())
+
+
+def test_a_warm_start_is_one_round_tested_at_the_warm_start(noisy):
+    """EM's E-steps start from the last solution (``warm_start``): one round, its rows every
+    row that passes the outlier test at the warm start (rows rejected before come back where
+    the solution explains them; without the test, rows the solution no longer explains would
+    stay), and with ``rejection_rounds`` 0 exactly the warm start's rows."""
+    from vislam.graph.factors import stereo_residuals, usable_rows
+
+    seq, settings = noisy.sequence, SmootherSettings()
+    cold = solve_smoother(seq, CONFIG, settings, init="dead-reckoning")
+    assert len(cold.iterations) == 2 and cold.n_outliers > 0
+    warm = solve_smoother(seq, CONFIG, settings, warm_start=cold)
+    assert len(warm.iterations) == 1
+    M = cold.cleaned.n_tracks
+    candidates, _ = usable_rows(cold.cleaned, CONFIG.min_disparity)
+    residual, depth = stereo_residuals(cold.poses, cold.landmarks, cold.cleaned.calibration, candidates)
+    passes = ((np.linalg.norm(residual, axis=1) <= settings.outlier_threshold_px)
+              & (depth >= settings.min_depth))
+    expected = candidates.subset(passes)
+    expected = expected.subset(keep_multi_observed(expected, M))
+    assert _row_keys(warm.problem.rows, M) == _row_keys(expected, M)
+    assert _row_keys(warm.problem.rows, M) != _row_keys(cold.problem.rows, M)  # the test did something
+    # the warm start is next to the minimum: a few iterations, the same solution
+    assert warm.iterations[0] <= 3 and warm.errors[0][0] < 1.05 * cold.errors[-1][1]
+    assert ate_rmse(warm.poses, cold.poses) < 1e-2
+    same_rows = solve_smoother(seq, CONFIG, settings.replace(rejection_rounds=0), warm_start=cold)
+    assert _row_keys(same_rows.problem.rows, M) == _row_keys(cold.problem.rows, M)
+
+
+def test_a_warm_start_under_a_moved_extrinsic_keeps_its_cameras(noisy):
+    """An EM step moves the extrinsic (here by 20 mrad and 5 cm): the warm start keeps the
+    cameras where vision put them (world_T_cam), so its landmarks project as before,
+    the outlier test keeps the rows it keeps under the old extrinsic (started from the old
+    body poses instead, the cameras would move and the pixels of every far landmark with them,
+    past the test), and LM reaches the minimum a cold start reaches."""
+    from vislam.ekf.geometry import se3_exp, se3_inv
+    from vislam.ekf.model import with_extrinsic
+    from vislam.graph.smoother import warm_start_poses
+
+    seq, settings = noisy.sequence, SmootherSettings()
+    cold = solve_smoother(seq, CONFIG, settings, init="dead-reckoning")
+    C0 = np.asarray(cold.cleaned.calibration.cam_T_imu)
+    C1 = se3_exp(np.array([0.02, -0.01, 0.01, 0.05, 0.0, -0.02])) @ C0
+    poses = warm_start_poses(cold, C1)
+    # (to 1e-6: the simulator's KITTI rotation is orthonormal to about 1e-7, se3_inv transposes)
+    np.testing.assert_allclose(poses @ se3_inv(C1), cold.poses @ se3_inv(C0), rtol=0, atol=1e-6)
+    assert warm_start_poses(cold, C0) is cold.poses
+    moved = solve_smoother(with_extrinsic(seq, C1), CONFIG, settings, warm_start=cold)
+    M = cold.cleaned.n_tracks
+    same = solve_smoother(seq, CONFIG, settings, warm_start=cold)  # the extrinsic unmoved
+    assert _row_keys(moved.problem.rows, M) == _row_keys(same.problem.rows, M)
+    # and it reaches the minimum a cold start under the moved extrinsic reaches
+    fresh = solve_smoother(with_extrinsic(seq, C1), CONFIG, settings, initial_poses=cold.poses)
+    assert abs(moved.errors[-1][1] - fresh.errors[-1][1]) < 2e-3 * fresh.errors[-1][1]
+    assert ate_rmse(moved.poses, fresh.poses) < 1e-2
+
+
 def test_damping_rules_and_linear_solvers_reach_the_same_solution(noisy):
     """How LM damps and which linear solver it uses change the path, not the answer: each
     ``lm_damping`` and ``linear_solver`` ends within a hair of the defaults (Nielsen's rule,
