@@ -10,6 +10,7 @@ identified linear velocity sigmas and lever arm. The issue's budget: 0034 in at 
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 
@@ -36,4 +37,8 @@ def main(paths: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:] or ["../shared/data/kitti-pr3/0034.npz"]))
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("paths", nargs="*", metavar="FILE.npz",
+                        default=["../shared/data/kitti-pr3/0034.npz"],
+                        help="drives to identify (default: the shared 0034)")
+    sys.exit(main(parser.parse_args().paths))

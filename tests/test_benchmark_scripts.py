@@ -15,17 +15,13 @@ import pytest
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 SCRIPTS = sorted(p.name for p in BENCHMARKS.glob("*.py"))
-#: scripts that read their arguments without argparse, so ``--help`` is taken as an input
-NO_HELP = {"calibrate_timing.py": "reads sys.argv as drive paths: --help is taken as a file"}
 
 
 def test_there_are_scripts():
     assert SCRIPTS
 
 
-@pytest.mark.parametrize("name", [
-    pytest.param(n, marks=pytest.mark.xfail(reason=NO_HELP[n], strict=True)) if n in NO_HELP else n
-    for n in SCRIPTS])
+@pytest.mark.parametrize("name", SCRIPTS)
 def test_script_starts(name, monkeypatch, capsys):
     path = BENCHMARKS / name
     monkeypatch.setattr(sys, "argv", [str(path), "--help"])
