@@ -57,6 +57,15 @@ per-sample sigma comes out high (simulation, 0.05 m/s: vertical velocity and rol
 m/s) and short drives, vision barely resolves the velocity noise (a 0.1 s interval moves 5 mm
 from it): EM then creeps towards small sigmas for many steps without converging.
 
+The streams' time offsets (issue 39, :mod:`graph.time_offset`). After the extrinsic's
+decision, the score of each stream's offset against the camera is taken from the solution's
+motion residuals (the offset enters each motion factor linearly through the stream's own
+rate); a stream whose score statistic passes BIC (``ln n``) is moved onto the camera's clock
+and EM continues there, warm-started, for a few Gauss-Newton (then secant) steps until the
+offsets move by less than a millisecond; everything after (bias, correlations, levels) works on
+the moved streams. The offsets are measured with the pairing chosen before them. Where no
+stream passes, nothing changes: the model is what it was without the test.
+
 What the drive cannot determine (issue 34, :mod:`graph.parameter_uncertainty`). Each white
 level's uncertainty is ``sd(log sigma) = 1 / sqrt(2 n (1 - r))``, ``r`` the share of the final
 E-step's expected squared residuals that the posterior holds over the intervals vision spans
@@ -157,6 +166,14 @@ class ModelFit:
     radial_k1_std: float | None = None
     #: the radial term against none: estimate, statistic, threshold, decision, profile
     radial_test: dict = field(default_factory=dict)
+    #: the velocity and gyro streams' time offsets (s, stamps late against the camera's;
+    #: graph.time_offset), None when the data support none, and their sigmas
+    velocity_time_offset: float | None = None
+    velocity_time_offset_std: float | None = None
+    gyro_time_offset: float | None = None
+    gyro_time_offset_std: float | None = None
+    #: per stream: estimate, sigma, statistic, decision; the threshold (BIC) and steps
+    time_offset_test: dict = field(default_factory=dict)
     #: the pixel errors' integrated correlation time along a track (graph.track_correlation),
     #: None when the data support none
     pixel_correlation_time: float | None = None
@@ -211,6 +228,10 @@ class ModelFit:
             gyro_bias_sigma=None if self.gyro_bias_std is None else tuple(map(float, self.gyro_bias_std)),
             radial_k1=None if self.radial_k1 is None else float(self.radial_k1),
             radial_k1_sigma=None if self.radial_k1 is None else float(self.radial_k1_std),
+            velocity_time_offset=self.velocity_time_offset,
+            velocity_time_offset_sigma=self.velocity_time_offset_std,
+            gyro_time_offset=self.gyro_time_offset,
+            gyro_time_offset_sigma=self.gyro_time_offset_std,
             pixel_correlation_time=self.pixel_correlation_time,
             velocity_correlation_time=self.velocity_correlation_time,
             gyro_correlation_time=self.gyro_correlation_time,
@@ -259,6 +280,18 @@ def motion_residuals(poses: np.ndarray, deltas: np.ndarray, twist: np.ndarray, t
     block[:, 6:, 6:] = pose_cov[1:n + 1]
     cw[:] = C @ block @ np.swapaxes(C, 1, 2)
     return w, cw, scale
+
+
+def solution_motion_residuals(solution) -> tuple[np.ndarray, np.ndarray]:
+    """``(w, cw)`` of :func:`motion_residuals` for a solved smoother (its pose chain's
+    marginals computed here)."""
+    from vislam.graph.marginals import pose_chain_covariances
+
+    T = solution.poses.shape[0]
+    pose_cov, pair_cov = pose_chain_covariances(solution.linearised()[1], T)[:2]
+    w, cw, _ = motion_residuals(solution.poses, solution.deltas, solution.twist, solution.tau,
+                                pose_cov, pair_cov)
+    return w, cw
 
 
 def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
@@ -450,13 +483,16 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
                    settings: SmootherSettings = SmootherSettings(), *,
                    pairings: tuple[str, ...] = VELOCITY_PAIRINGS,
                    max_iterations: int = 12, rtol: float = 0.01,
-                   extrinsic: bool = True, radial: bool = True) -> ModelFit:
+                   extrinsic: bool = True, radial: bool = True,
+                   time_offsets: bool = True) -> ModelFit:
     """The model of ``seq`` by EM (module docstring): per-axis velocity and gyro sigma, pixel
     sigma, the velocity pairing with the largest likelihood, a gyro bias when a
     likelihood-ratio supports it (BIC), (``extrinsic``) the camera-IMU extrinsic with its
     covariance and (``radial``) a radial lens term of the pixels when its Wald statistic
-    passes BIC (:mod:`graph.radial`). ``config`` gives the starting point and every
-    other filter setting; ``settings`` the smoother's."""
+    passes BIC (:mod:`graph.radial`), and (``time_offsets``) the velocity and gyro streams'
+    time offsets against the camera where the data support them (BIC, :mod:`graph.time_offset`).
+    ``config`` gives the starting point and every other filter setting; ``settings`` the
+    smoother's."""
     from vislam.graph.radial import radial_profile
     from vislam.graph.smoother import solve_smoother
     from vislam.graph.track_correlation import solution_track_correlation
@@ -544,6 +580,25 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
                           extrinsic=False, warm_start=em.solution)
             total_steps += em.steps
             em.extrinsic = data_extrinsic  # the data's uncertainty about the extrinsic
+
+    # The streams' time offsets against the camera (graph.time_offset): where the data
+    # support one, the streams are moved onto the camera's clock and EM continues from the
+    # solution there; everything after works on the moved streams. Where they support none,
+    # nothing changes.
+    offset_fit = None
+    if time_offsets:
+        from vislam.graph.time_offset import identify_time_offsets
+
+        def refit(shifted_seq: Sequence, previous: EMResult) -> EMResult:
+            nonlocal total_steps
+            out = em_noise(shifted_seq, previous.config, with_bias, max_iterations=max_iterations,
+                           rtol=rtol, extrinsic=False, cam_T_imu=previous.cam_T_imu,
+                           warm_start=previous.solution)
+            out.extrinsic = previous.extrinsic  # the data's uncertainty about the extrinsic
+            total_steps += out.steps
+            return out
+
+        offset_fit, em, seq = identify_time_offsets(seq, em, refit, solution_motion_residuals)
     cfg, stats, solution = em.config, em.stats, em.solution
 
     # Gyro bias: likelihood ratio of the bias against none, at the identified noise levels.
@@ -628,6 +683,11 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
         radial_test={} if radial_fit is None else {
             "estimate": radial_fit.estimate,
             "std": radial_fit.std if np.isfinite(radial_fit.std) else None, **radial_fit.test},
+        velocity_time_offset=None if offset_fit is None else offset_fit.offset("velocity"),
+        velocity_time_offset_std=None if offset_fit is None else offset_fit.offset_sigma("velocity"),
+        gyro_time_offset=None if offset_fit is None else offset_fit.offset("gyro"),
+        gyro_time_offset_std=None if offset_fit is None else offset_fit.offset_sigma("gyro"),
+        time_offset_test={} if offset_fit is None else offset_fit.to_dict(),
         pixel_correlation_time=correlation.time,
         pixel_correlation_test={**correlation.to_dict(), "white_sigma": stats.pixel_sigma},
         velocity_correlation_time=motion.velocity_time,
@@ -705,6 +765,6 @@ def _motion_correlation(seq: Sequence, cam_T_imu: np.ndarray, cfg: FilterConfig,
 
 
 __all__ = ["ModelFit", "EMResult", "NoiseStatistics", "identify_model", "em_noise",
-           "motion_residuals",
+           "motion_residuals", "solution_motion_residuals",
            "noise_statistics", "with_extrinsic", "EXTRINSIC_STEP_TOL",
            "BIAS_TEST_LEVEL"]

@@ -4,7 +4,9 @@ EM around the batch smoother (:mod:`graph.identification`): per-axis velocity an
 the stereo pixel noise, the velocity pairing with the largest likelihood, and a constant gyro
 bias when its likelihood ratio passes the BIC, and a radial lens term of the pixels when its
 Wald statistic passes the BIC (:mod:`graph.radial`; the files carry no distortion
-coefficient, so the file's value is none). Prints each value with its standard deviation
+coefficient, so the file's value is none), and each velocity stream's time offset against the
+camera when its score passes the BIC (:mod:`graph.time_offset`; estimate, sigma, statistic and
+decision printed for both streams). Prints each value with its standard deviation
 beside the settings it would replace, and writes the model as TOML (``--out``, the ``[model]``
 table every command's ``--config`` reads).
 
@@ -76,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
 
     fit = identify_model(seq, config, smoother, pairings=pairings,
                          max_iterations=args.max_iterations,
-                         extrinsic=args.extrinsic == "identify")
+                         extrinsic=args.extrinsic == "identify",
+                         time_offsets=True)
     how = "EM around the smoother" + ("" if args.extrinsic == "identify"
                                       else "; the extrinsic is the file's, not identified")
     model = fit.to_model(f"vislam calibrate {Path(args.file).name} ({how})")
@@ -238,6 +241,13 @@ def report(name: str, frames: int, fit, config) -> str:
     lines.append(f"gyro bias: likelihood ratio {t['statistic']:.1f} against {t['threshold']:.2f} "
                  f"(BIC, 3 ln n; chi-square 3 dof {t['level']:.0%}: {t['chi2_threshold']:.2f}): "
                  f"{t['decision']}")
+    o = fit.time_offset_test
+    if o:
+        for stream, key in (("velocity", "linear-velocity"), ("gyro", "angular-velocity")):
+            e = o[stream]
+            lines.append(f"{key} stamps late against the camera's: {e['estimate'] * 1e3:.1f} ms, "
+                         f"sigma {e['sigma'] * 1e3:.1f} ms, statistic {e['statistic']:.1f} "
+                         f"against {o['threshold']:.2f} ({o['criterion']}): {e['decision']}")
     r = fit.radial_test
     if r:
         size = "" if r.get("std") is None else (
