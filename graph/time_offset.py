@@ -44,6 +44,9 @@ STEP_TOL = 1e-3
 #: 10 Hz: the rate of a noisy stream from neighbouring samples is mostly their noise, which
 #: weakens the test at zero; the stamps are taken as evenly spaced at their median interval).
 RATE_WINDOW = 11
+#: Largest offset the iteration moves to (s): beyond it the streams would lose their ends' share
+#: of the drive (the model accepts up to ekf.model.MAX_TIME_OFFSET).
+MAX_OFFSET = 0.5
 #: Gauss-Newton steps at most (each a warm-started re-solve).
 MAX_STEPS = 3
 
@@ -133,6 +136,7 @@ class TimeOffsetFit:
     threshold: float  # ln n
     supported: np.ndarray  # (2,) bool
     steps: int
+    converged: bool = True  # the last step below STEP_TOL (False: MAX_STEPS reached)
 
     def offset(self, stream: str) -> float | None:
         i = STREAMS.index(stream)
@@ -145,7 +149,7 @@ class TimeOffsetFit:
     def to_dict(self) -> dict:
         return {
             "criterion": "BIC (ln n per stream, score statistic at zero)",
-            "threshold": self.threshold, "steps": self.steps,
+            "threshold": self.threshold, "steps": self.steps, "converged": self.converged,
             **{s: {"estimate": float(self.estimate[i]) if self.supported[i]
                    else float(self.first_estimate[i]),
                    "sigma": float(self.sigma[i]) if self.supported[i] else float(self.first_sigma[i]),
@@ -170,7 +174,7 @@ def identify_time_offsets(seq, em, refit, residuals):
         return TimeOffsetFit(estimate=np.zeros(2), sigma=first_sigma,
                              first_estimate=first.step, first_sigma=first_sigma,
                              statistic=first.statistic, threshold=threshold,
-                             supported=supported, steps=0), em, seq
+                             supported=supported, steps=0, converged=True), em, seq
     mask = supported.astype(float)
 
     def restricted(step: OffsetStep) -> np.ndarray:
@@ -183,10 +187,10 @@ def identify_time_offsets(seq, em, refit, residuals):
     # Gauss-Newton from zero, then secant steps per stream: the score's slope measured between
     # the solves (the profiled information above ignores the correlation of the posterior
     # across intervals, and overshoots where vision barely pins the motion).
-    d = restricted(first)
+    d = np.clip(restricted(first), -MAX_OFFSET, MAX_OFFSET)
     slope = np.diag(first.information).copy()
     d_prev, score_prev = np.zeros(2), first.score
-    steps, last = 0, first
+    steps, last, converged = 0, first, False
     current_seq = seq
     for steps in range(1, MAX_STEPS + 1):
         current_seq = shifted(seq, d * mask)  # em is solved at these offsets from here on
@@ -197,9 +201,10 @@ def identify_time_offsets(seq, em, refit, residuals):
         slope = np.where(moved & (measured > 0), measured, slope)
         move = np.where(supported, last.score / slope, 0.0)
         if np.max(np.abs(move)) < STEP_TOL:
+            converged = True
             break
         d_prev, score_prev = d, last.score
-        d = d + move
+        d = np.clip(d + move, -MAX_OFFSET, MAX_OFFSET)
     last.information = np.diag(slope)  # the measured slope: the information on each offset
     idx = np.nonzero(supported)[0]
     cov = np.zeros((2, 2))
@@ -207,4 +212,5 @@ def identify_time_offsets(seq, em, refit, residuals):
     sigma = np.where(supported, np.sqrt(np.abs(np.diag(cov))), first_sigma)
     return TimeOffsetFit(estimate=d * mask, sigma=sigma, first_estimate=first.step,
                          first_sigma=first_sigma, statistic=first.statistic,
-                         threshold=threshold, supported=supported, steps=steps), em, current_seq
+                         threshold=threshold, supported=supported, steps=steps,
+                         converged=converged), em, current_seq
