@@ -62,8 +62,10 @@ decision, the score of each stream's offset against the camera is taken from the
 motion residuals (the offset enters each motion factor linearly through the stream's own
 rate); a stream whose score statistic passes BIC (``ln n``) is moved onto the camera's clock
 and EM continues there, warm-started, for a few Gauss-Newton (then secant) steps until the
-offsets move by less than a millisecond; everything after (bias, correlations, levels) works on
-the moved streams. The offsets are measured with the pairing chosen before them. Where no
+offsets move by less than a millisecond; everything after (the bias's value, correlations,
+levels) works on the moved streams. The offsets are measured with the pairing chosen before
+them, and the bias's decision is made before them too: a removed offset lowers the gyro's white
+sigma, and with it BIC's bar for a "bias" that is a slow error rather than a constant. Where no
 stream passes, nothing changes: the model is what it was without the test.
 
 What the drive cannot determine (issue 34, :mod:`graph.parameter_uncertainty`). Each white
@@ -123,6 +125,10 @@ class NoiseStatistics:
     spanned_sq: np.ndarray | None = None
     spanned_posterior: np.ndarray | None = None
     n_spanned: int = 0
+    #: (T-1, 6) each interval's motion residual and (T-1, 6, 6) its posterior covariance
+    #: (motion_residuals): what the time offsets are scored from (graph.time_offset)
+    motion_w: np.ndarray | None = None
+    motion_cw: np.ndarray | None = None
 
     @property
     def interval_sigma(self) -> np.ndarray:
@@ -282,18 +288,6 @@ def motion_residuals(poses: np.ndarray, deltas: np.ndarray, twist: np.ndarray, t
     return w, cw, scale
 
 
-def solution_motion_residuals(solution) -> tuple[np.ndarray, np.ndarray]:
-    """``(w, cw)`` of :func:`motion_residuals` for a solved smoother (its pose chain's
-    marginals computed here)."""
-    from vislam.graph.marginals import pose_chain_covariances
-
-    T = solution.poses.shape[0]
-    pose_cov, pair_cov = pose_chain_covariances(solution.linearised()[1], T)[:2]
-    w, cw, _ = motion_residuals(solution.poses, solution.deltas, solution.twist, solution.tau,
-                                pose_cov, pair_cov)
-    return w, cw
-
-
 def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
     """The E-step: expected squared residuals of the motion and stereo factors of a solved
     smoother (:class:`graph.smoother.SmootherSolution`) and the Laplace likelihood terms."""
@@ -342,6 +336,7 @@ def noise_statistics(solution, config: FilterConfig) -> NoiseStatistics:
         chi2=2.0 * float(problem.graph.error(values)), log_det_noise=log_det_noise,
         log_det_information=float(log_det_h), spanned_sq=spanned_sq,
         spanned_posterior=spanned_posterior, n_spanned=int(np.count_nonzero(spanned)),
+        motion_w=w, motion_cw=cw,
     )
 
 
@@ -581,10 +576,32 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
             total_steps += em.steps
             em.extrinsic = data_extrinsic  # the data's uncertainty about the extrinsic
 
-    # The streams' time offsets against the camera (graph.time_offset): where the data
-    # support one, the streams are moved onto the camera's clock and EM continues from the
-    # solution there; everything after works on the moved streams. Where they support none,
-    # nothing changes.
+    # Gyro bias: likelihood ratio of the bias against none, at the identified noise levels.
+    # Same stereo rows as the solution (no new outlier round), so that the two chi-squares
+    # differ by the bias alone.
+    def without_bias(seq: Sequence, em: EMResult):
+        return solve_smoother(with_extrinsic(seq, em.cam_T_imu), em.config,
+                              settings.replace(gyro_bias="off", rejection_rounds=0),
+                              warm_start=em.solution)
+
+    no_bias = without_bias(seq, em)
+    chi2_without = 2.0 * float(no_bias.problem.graph.error(no_bias.values))
+    chi2_with = em.stats.chi2
+    # With the "mean" pairing the interval noises telescope: the mean of n of them has a
+    # sample's variance over n, twice what independent intervals would have (f^2 = 1/2), so
+    # the ratio statistic is scaled back by f^2 and the bias's sigma is a sample's / sqrt(n).
+    f = interval_sigma_factor(best)
+    statistic = max(chi2_without - chi2_with, 0.0) * f * f
+    chi2_threshold = float(chi2.ppf(BIAS_TEST_LEVEL, 3))
+    threshold = 3.0 * float(np.log(max(em.stats.n_intervals, 2)))  # BIC: k ln n
+    has_bias = statistic > threshold and em.solution.gyro_bias is not None
+
+    # The streams' time offsets against the camera (graph.time_offset), with the bias decided
+    # above: where the data support one, the streams are moved onto the camera's clock and EM
+    # continues from the solution there; everything after works on the moved streams. Where
+    # they support none, nothing changes. The bias is decided before them: an offset removed
+    # lowers the gyro's white sigma and with it BIC's bar for a "bias" that is a slow error,
+    # not a constant (the 2019 edition of 0027: docs/findings.md, "Time offsets").
     offset_fit = None
     if time_offsets:
         from vislam.graph.time_offset import identify_time_offsets
@@ -598,25 +615,10 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
             total_steps += out.steps
             return out
 
-        offset_fit, em, seq = identify_time_offsets(seq, em, refit, solution_motion_residuals)
+        offset_fit, em, seq = identify_time_offsets(seq, em, refit)
+        if offset_fit.supported.any() and not has_bias:
+            no_bias = without_bias(seq, em)  # on the moved streams
     cfg, stats, solution = em.config, em.stats, em.solution
-
-    # Gyro bias: likelihood ratio of the bias against none, at the identified noise levels.
-    # Same stereo rows as the solution (no new outlier round), so that the two chi-squares
-    # differ by the bias alone.
-    no_bias = solve_smoother(with_extrinsic(seq, em.cam_T_imu), cfg,
-                             settings.replace(gyro_bias="off", rejection_rounds=0),
-                             warm_start=solution)
-    chi2_without = 2.0 * float(no_bias.problem.graph.error(no_bias.values))
-    chi2_with = stats.chi2
-    # With the "mean" pairing the interval noises telescope: the mean of n of them has a
-    # sample's variance over n, twice what independent intervals would have (f^2 = 1/2), so
-    # the ratio statistic is scaled back by f^2 and the bias's sigma is a sample's / sqrt(n).
-    f = interval_sigma_factor(best)
-    statistic = max(chi2_without - chi2_with, 0.0) * f * f
-    chi2_threshold = float(chi2.ppf(BIAS_TEST_LEVEL, 3))
-    threshold = 3.0 * float(np.log(max(stats.n_intervals, 2)))  # BIC: k ln n
-    has_bias = statistic > threshold and solution.gyro_bias is not None
     bias = np.asarray(solution.gyro_bias, dtype=float) if has_bias else None
     bias_std = None
 
@@ -765,6 +767,6 @@ def _motion_correlation(seq: Sequence, cam_T_imu: np.ndarray, cfg: FilterConfig,
 
 
 __all__ = ["ModelFit", "EMResult", "NoiseStatistics", "identify_model", "em_noise",
-           "motion_residuals", "solution_motion_residuals",
+           "motion_residuals",
            "noise_statistics", "with_extrinsic", "EXTRINSIC_STEP_TOL",
            "BIAS_TEST_LEVEL"]

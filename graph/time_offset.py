@@ -95,7 +95,7 @@ def stream_rates(seq, pairing: str) -> np.ndarray:
 def offset_step(residuals, seq, config) -> OffsetStep:
     """The Gauss-Newton step of both offsets from ``residuals`` ``(w, cw)``, the twist noise
     (n, 6) and its posterior covariance (n, 6, 6) of a solved smoother of ``seq`` (on the clock of
-    the offsets it was solved with; graph.identification.solution_motion_residuals) under
+    the offsets it was solved with; graph.identification.noise_statistics: motion_w, motion_cw) under
     ``config`` (its interval sigmas and pairing): module docstring."""
     w, cw = residuals
     W = estimate_cov_to_gtsam(config.velocity_cov)
@@ -159,13 +159,14 @@ class TimeOffsetFit:
         }
 
 
-def identify_time_offsets(seq, em, refit, residuals):
+def identify_time_offsets(seq, em, refit):
     """``(fit, em, seq)``: the offsets of ``seq``'s streams around ``em`` (an
     graph.identification.EMResult on ``seq``) and, where the data support one, ``em`` refitted
     on the shifted streams (``refit(seq, em) -> EMResult``, warm-started) and the shifted
     sequence; where they support none, ``em`` and ``seq`` themselves, untouched.
-    ``residuals(solution) -> (w, cw)``: graph.identification.solution_motion_residuals."""
-    first = offset_step(residuals(em.solution), seq, em.config)
+    Each offset is scored from the motion residuals of ``em``'s final E-step (its statistics'
+    ``motion_w`` and ``motion_cw``), at no further cost."""
+    first = offset_step((em.stats.motion_w, em.stats.motion_cw), seq, em.config)
     n = max(first.n_intervals, 2)
     threshold = float(np.log(n))
     supported = first.statistic > threshold
@@ -195,7 +196,7 @@ def identify_time_offsets(seq, em, refit, residuals):
     for steps in range(1, MAX_STEPS + 1):
         current_seq = shifted(seq, d * mask)  # em is solved at these offsets from here on
         em = refit(current_seq, em)
-        last = offset_step(residuals(em.solution), current_seq, em.config)
+        last = offset_step((em.stats.motion_w, em.stats.motion_cw), current_seq, em.config)
         moved = np.abs(d - d_prev) > 1e-4
         measured = np.where(moved, (score_prev - last.score) / np.where(moved, d - d_prev, 1.0), 0.0)
         slope = np.where(moved & (measured > 0), measured, slope)

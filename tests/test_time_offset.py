@@ -152,7 +152,7 @@ def test_the_offsets_applied_give_the_accuracy_of_a_drive_without_them(v_off, g_
 def test_one_gauss_newton_step_finds_a_late_velocity_stream():
     from vislam.graph.settings import SmootherSettings
     from vislam.graph.smoother import solve_smoother
-    from vislam.graph.identification import solution_motion_residuals
+    from vislam.graph.identification import noise_statistics
     from vislam.graph.time_offset import offset_step
 
     result = simulate(SimConfig(seed=0, n_frames=150, velocity_time_offset=0.1,
@@ -160,7 +160,8 @@ def test_one_gauss_newton_step_finds_a_late_velocity_stream():
     model = true_model(result).replace(velocity_time_offset=None, gyro_time_offset=None)
     seq, config = apply_model(result.sequence, FilterConfig(), model)
     solution = solve_smoother(seq, config, SmootherSettings())
-    step = offset_step(solution_motion_residuals(solution), seq, config)
+    stats = noise_statistics(solution, config)
+    step = offset_step((stats.motion_w, stats.motion_cw), seq, config)
     assert abs(step.step[0] - 0.1) < 3 * step.sigma[0] + 0.005, (step.step, step.sigma)
     assert step.statistic[0] > np.log(step.n_intervals)  # supported (BIC)
     assert abs(step.step[1] - 0.03) < 3 * step.sigma[1] + 0.005, (step.step, step.sigma)
