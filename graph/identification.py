@@ -57,7 +57,8 @@ per-sample sigma comes out high (simulation, 0.05 m/s: vertical velocity and rol
 m/s) and short drives, vision barely resolves the velocity noise (a 0.1 s interval moves 5 mm
 from it): EM then creeps towards small sigmas for many steps without converging.
 
-The streams' time offsets (issue 39, :mod:`graph.time_offset`). After the extrinsic's
+The streams' time offsets (issue 39, :mod:`graph.time_offset`; with ``time_offsets``, which
+`vislam calibrate --time-offsets` sets and `vislam bench` does not). After the extrinsic's
 decision, the score of each stream's offset against the camera is taken from the solution's
 motion residuals (the offset enters each motion factor linearly through the stream's own
 rate); a stream whose score statistic passes BIC (``ln n``) is moved onto the camera's clock
@@ -479,7 +480,7 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
                    pairings: tuple[str, ...] = VELOCITY_PAIRINGS,
                    max_iterations: int = 12, rtol: float = 0.01,
                    extrinsic: bool = True, radial: bool = True,
-                   time_offsets: bool = True) -> ModelFit:
+                   time_offsets: bool = False) -> ModelFit:
     """The model of ``seq`` by EM (module docstring): per-axis velocity and gyro sigma, pixel
     sigma, the velocity pairing with the largest likelihood, a gyro bias when a
     likelihood-ratio supports it (BIC), (``extrinsic``) the camera-IMU extrinsic with its

@@ -51,6 +51,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="EM steps per pairing at most (default 12)")
     parser.add_argument("--extrinsic", choices=("identify", "file"), default="identify",
                         help="identify the camera-IMU extrinsic (default) or keep the file's")
+    parser.add_argument("--time-offsets", action="store_true",
+                        help="also estimate the velocity and gyro streams' time offsets against "
+                             "the camera (off by default: a velocity pairing is itself a shift of "
+                             "half an interval, and the two are chosen one after the other)")
     add_filter_arguments(parser)
 
 
@@ -79,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     fit = identify_model(seq, config, smoother, pairings=pairings,
                          max_iterations=args.max_iterations,
                          extrinsic=args.extrinsic == "identify",
-                         time_offsets=True)
+                         time_offsets=args.time_offsets)
     how = "EM around the smoother" + ("" if args.extrinsic == "identify"
                                       else "; the extrinsic is the file's, not identified")
     model = fit.to_model(f"vislam calibrate {Path(args.file).name} ({how})")
@@ -242,7 +246,10 @@ def report(name: str, frames: int, fit, config) -> str:
                  f"(BIC, 3 ln n; chi-square 3 dof {t['level']:.0%}: {t['chi2_threshold']:.2f}): "
                  f"{t['decision']}")
     o = fit.time_offset_test
-    if o:
+    if not o:
+        lines.append("time offsets of the streams against the camera: not estimated "
+                     "(--time-offsets estimates them)")
+    else:
         for stream, key in (("velocity", "linear-velocity"), ("gyro", "angular-velocity")):
             e = o[stream]
             lines.append(f"{key} stamps late against the camera's: {e['estimate'] * 1e3:.1f} ms, "
