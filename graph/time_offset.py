@@ -47,8 +47,8 @@ RATE_WINDOW = 11
 #: Largest offset the iteration moves to (s): beyond it the streams would lose their ends' share
 #: of the drive (the model accepts up to ekf.model.MAX_TIME_OFFSET).
 MAX_OFFSET = 0.5
-#: Gauss-Newton steps at most (each a warm-started re-solve).
-MAX_STEPS = 3
+#: Steps at most (each a warm-started re-solve).
+MAX_STEPS = 4
 
 
 @dataclass
@@ -188,7 +188,18 @@ def identify_time_offsets(seq, em, refit):
     # Gauss-Newton from zero, then secant steps per stream: the score's slope measured between
     # the solves (the profiled information above ignores the correlation of the posterior
     # across intervals, and overshoots where vision barely pins the motion).
-    d = np.clip(restricted(first), -MAX_OFFSET, MAX_OFFSET)
+    # Safeguarded: the score falls as the offset grows (a positive score: the root is later), so
+    # each solve narrows a bracket [lo, hi] around the root; a secant step longer than twice the
+    # Gauss-Newton step of the current solve (a slope measured between solves that barely moved
+    # the motion) takes the Gauss-Newton step instead, and a step out of the bracket bisects it.
+    lo, hi = np.full(2, -MAX_OFFSET), np.full(2, MAX_OFFSET)
+
+    def narrow(at: np.ndarray, score: np.ndarray) -> None:
+        np.copyto(lo, np.where(score > 0, np.maximum(lo, at), lo))
+        np.copyto(hi, np.where(score < 0, np.minimum(hi, at), hi))
+
+    narrow(np.zeros(2), first.score)
+    d = np.clip(restricted(first), lo, hi)
     slope = np.diag(first.information).copy()
     d_prev, score_prev = np.zeros(2), first.score
     steps, last, converged = 0, first, False
@@ -197,15 +208,20 @@ def identify_time_offsets(seq, em, refit):
         current_seq = shifted(seq, d * mask)  # em is solved at these offsets from here on
         em = refit(current_seq, em)
         last = offset_step((em.stats.motion_w, em.stats.motion_cw), current_seq, em.config)
+        narrow(d, last.score)
         moved = np.abs(d - d_prev) > 1e-4
         measured = np.where(moved, (score_prev - last.score) / np.where(moved, d - d_prev, 1.0), 0.0)
         slope = np.where(moved & (measured > 0), measured, slope)
         move = np.where(supported, last.score / slope, 0.0)
+        gauss_newton = np.where(supported, last.score / np.diag(last.information), 0.0)
+        move = np.where(np.abs(move) > 2.0 * np.abs(gauss_newton), gauss_newton, move)
+        target = d + move
+        move = np.where((target <= lo) | (target >= hi), 0.5 * (lo + hi) - d, move)
         if np.max(np.abs(move)) < STEP_TOL:
             converged = True
             break
         d_prev, score_prev = d, last.score
-        d = np.clip(d + move, -MAX_OFFSET, MAX_OFFSET)
+        d = d + move
     last.information = np.diag(slope)  # the measured slope: the information on each offset
     idx = np.nonzero(supported)[0]
     cov = np.zeros((2, 2))

@@ -167,22 +167,20 @@ def test_one_gauss_newton_step_finds_a_late_velocity_stream():
     assert abs(step.step[1] - 0.03) < 3 * step.sigma[1] + 0.005, (step.step, step.sigma)
 
 
-#: Where each pairing takes an interval's twist from, against the interval's middle (s at
-#: 10 Hz): an offset is measured with the pairing the model has (ekf.model docstring), so the
-#: truth of a drive made with "mean" is, under "next", half an interval earlier.
-PAIRING_CENTRE = {"current": -0.05, "mean": 0.0, "next": 0.05}
 #: A short drive whose vision pins the motion well enough to time the streams.
 TIMED = dict(n_frames=150, velocity_sigma=0.05, gyro_sigma=0.002)
 
 
 def _recovered(seed: int, v_off: float, g_off: float):
+    """The fit of a drive made with the "mean" pairing and these offsets, identified under that
+    pairing: a pairing is itself a shift of half an interval (docs/estimators.md), so under
+    another the offsets read 50 ms apart from the drive's."""
     from vislam.graph.identification import identify_model
 
     result = simulate(SimConfig(seed=seed, velocity_time_offset=v_off, gyro_time_offset=g_off,
                                 **TIMED))
-    fit = identify_model(result.sequence, time_offsets=True)
-    shift = -PAIRING_CENTRE[fit.pairing]  # the drive is made with "mean"
-    return fit, {"velocity": v_off + shift, "gyro": g_off + shift}
+    fit = identify_model(result.sequence, pairings=("mean",), time_offsets=True)
+    return fit, {"velocity": v_off, "gyro": g_off}
 
 
 def _check_recovered(fit, truth):
@@ -200,16 +198,10 @@ def _check_recovered(fit, truth):
             assert abs(want) < tol + 3.0 * got["sigma"], (stream, want, test)
 
 
-@pytest.mark.parametrize("v_off, g_off", [(0.0, 0.0), (0.1, 0.03)])
-def test_identification_finds_the_offsets_or_none(v_off, g_off):
-    fit, truth = _recovered(0, v_off, g_off)
-    _check_recovered(fit, truth)
-
-
 @pytest.mark.regression
-@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("v_off, g_off", [(0.0, 0.0), (0.03, 0.1), (0.1, 0.03)])
-def test_identification_finds_the_offsets_on_more_seeds(seed, v_off, g_off):
+def test_identification_finds_the_offsets_or_none(seed, v_off, g_off):
     fit, truth = _recovered(seed, v_off, g_off)
     _check_recovered(fit, truth)
 
