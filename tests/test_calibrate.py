@@ -138,7 +138,12 @@ def test_calibrate_writes_a_model_every_command_reads(drive, tmp_path, capsys):
     text = capsys.readouterr().out
     assert "velocity sigma x y z (m/s)" in text and "lever arm: camera from the point the velocities are of" in text
     assert "file extrinsic: Wald statistic" in text and "BIC" in text and "velocity vs vision:" in text
+    # the streams' time offsets only with --time-offsets (tests/test_time_offset.py)
+    assert ("time offsets of the streams against the camera: not estimated (--time-offsets "
+            "estimates them)") in text
+    assert "stamps late against the camera's" not in text
     model = Model.from_toml(model_file)
+    assert model.velocity_time_offset is None and model.gyro_time_offset is None
     assert model.velocity_pairing == "mean" and 0.3 < model.velocity_sigma[0] < 0.7
     assert model.cam_T_imu_sigma is not None  # the data's uncertainty about the extrinsic
     # the model holds the file's extrinsic exactly when the verdict says it was kept
