@@ -152,7 +152,8 @@ def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings,
     params.setAbsoluteErrorTol(settings.absolute_error_tol)
     params.setUseFixedLambdaFactor(settings.lm_damping == "fixed")
     params.setLinearSolverType(LINEAR_SOLVERS[settings.linear_solver])
-    if problem.scale is not None:  # Python factors: the loop that hands them Python-owned values
+    if problem.scale is not None or problem.values.exists(BIAS_KEY):
+        # Python factors (speed scale, joint gyro bias): the loop that hands them Python-owned values
         return _python_values_lm(problem, settings, params)
     try:
         optimizer = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, params)
@@ -170,7 +171,7 @@ def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings,
 def _python_values_lm(problem: GraphProblem, settings: SmootherSettings,
                       params: gtsam.LevenbergMarquardtParams) -> tuple[gtsam.Values, int, float, float]:
     """:func:`_levenberg_marquardt` for a graph with one Python ``CustomFactor`` per interval
-    (the speed scale, :mod:`graph.speed_scale`): GTSAM's LM hands each Python factor a copy of
+    (the speed scale, :mod:`graph.speed_scale`; the joint gyro bias, :mod:`graph.gyro_bias`): GTSAM's LM hands each Python factor a copy of
     its whole ``Values`` at every evaluation (pybind11 copies a C++-owned argument), so an
     iteration costs (intervals x variables): 4-5 s on a 1,224-frame KITTI drive against 0.3 s
     here, where the graph is linearised and evaluated at Python-owned values (passed by
