@@ -16,7 +16,9 @@ motion, the trajectory follows the stream and the residual says nothing about it
 :func:`offset_step` is the Gauss-Newton step; :func:`identify_time_offsets` applies it (the
 streams resampled, :func:`ekf.model.time_shifted`), re-solves warm-started (EM continued) and
 repeats with secant steps (the score's slope measured between solves, which also gives the
-sigma) until the step is below ``STEP_TOL``, at most ``MAX_STEPS`` re-solves. The noise in
+sigma), safeguarded: each solve's score narrows a bracket around the root, a secant step more
+than twice the current Gauss-Newton step takes that step instead, and a step out of the bracket
+bisects it; until the step is below ``STEP_TOL``, at most ``MAX_STEPS`` re-solves. The noise in
 ``a`` only slows the iteration: its fixed point is where the exact residuals are uncorrelated
 with the stream's rate. The rate is a local quadratic's slope over ``RATE_WINDOW`` samples.
 
