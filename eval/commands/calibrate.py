@@ -53,8 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="identify the camera-IMU extrinsic (default) or keep the file's")
     parser.add_argument("--time-offsets", action="store_true",
                         help="also estimate the velocity and gyro streams' time offsets against "
-                             "the camera (off by default: a velocity pairing is itself a shift of "
-                             "half an interval, and the two are chosen one after the other)")
+                             "the camera (off by default; vislam bench does not: docs/estimators.md)")
     add_filter_arguments(parser)
 
 
