@@ -62,8 +62,8 @@ The streams' time offsets (issue 39, :mod:`graph.time_offset`; with ``time_offse
 decision, the score of each stream's offset against the camera is taken from the solution's
 motion residuals (the offset enters each motion factor linearly through the stream's own
 rate); a stream whose score statistic passes BIC (``ln n``) is moved onto the camera's clock
-and EM continues there, warm-started, for a few Gauss-Newton (then secant) steps until the
-offsets move by less than a millisecond; everything after (the bias's value, correlations,
+and EM continues there, warm-started, for a few safeguarded Gauss-Newton and secant steps
+until the offsets move by less than a millisecond; everything after (the bias's value, correlations,
 levels) works on the moved streams. The offsets are measured with the pairing chosen before
 them, and the bias's decision is made before them too: a removed offset lowers the gyro's white
 sigma, and with it BIC's bar for a "bias" that is a slow error rather than a constant. Where no

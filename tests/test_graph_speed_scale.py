@@ -178,7 +178,7 @@ def test_speed_scale_off_builds_the_plain_graph():
 @pytest.mark.parametrize("damping", ["nielsen", "fixed"])
 def test_python_values_lm_reaches_gtsams_minimum(damping):
     """The speed-scale graph's LM loop (Python-owned values) ends where GTSAM's own LM does."""
-    from vislam.graph.smoother import _levenberg_marquardt
+    from tests.lm_reference import assert_lm_reaches_gtsams_minimum
 
     sim, seq = _scaled_drive(40, 0.02, seed=9)
     on = dataclasses.replace(_CONFIG, speed_scale=True, speed_scale_sigma=0.03)
@@ -188,15 +188,7 @@ def test_python_values_lm_reaches_gtsams_minimum(damping):
     start = build_graph(sol.poses, sol.landmarks, problem.rows, sol.deltas, sol.noise,
                         scale=dataclasses.replace(sol.scale_model, initial=np.zeros(sol.scale_model.n_variables)))
     start.values.update(X(0), start.values.atPose3(X(0)))
-    ours, n_iter, e0, e1 = _levenberg_marquardt(start, settings)
-    params = gtsam.LevenbergMarquardtParams()
-    params.setRelativeErrorTol(1e-8)
-    params.setUseFixedLambdaFactor(damping == "fixed")
-    theirs = gtsam.LevenbergMarquardtOptimizer(start.graph, start.values, params).optimize()
-    assert n_iter >= 1 and e1 < e0
-    np.testing.assert_allclose(e1, start.graph.error(theirs), rtol=1e-6)
-    for k in range(0, 40, 13):
-        np.testing.assert_allclose(ours.atPose3(X(k)).matrix(), theirs.atPose3(X(k)).matrix(), atol=1e-6)
+    ours, theirs = assert_lm_reaches_gtsams_minimum(start, settings, 40)
     np.testing.assert_allclose(ours.atDouble(S(5)), theirs.atDouble(S(5)), atol=1e-6)
 
 

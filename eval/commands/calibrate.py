@@ -4,9 +4,9 @@ EM around the batch smoother (:mod:`graph.identification`): per-axis velocity an
 the stereo pixel noise, the velocity pairing with the largest likelihood, and a constant gyro
 bias when its likelihood ratio passes the BIC, and a radial lens term of the pixels when its
 Wald statistic passes the BIC (:mod:`graph.radial`; the files carry no distortion
-coefficient, so the file's value is none), and each velocity stream's time offset against the
-camera when its score passes the BIC (:mod:`graph.time_offset`; estimate, sigma, statistic and
-decision printed for both streams). Prints each value with its standard deviation
+coefficient, so the file's value is none), and with ``--time-offsets`` each velocity stream's
+time offset against the camera when its score passes the BIC (:mod:`graph.time_offset`;
+estimate, sigma, statistic and decision printed for both streams). Prints each value with its standard deviation
 beside the settings it would replace, and writes the model as TOML (``--out``, the ``[model]``
 table every command's ``--config`` reads).
 
