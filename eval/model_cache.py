@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 
 #: Changes whenever the identification would give a different answer on the same input, to a
 #: value never used before (so that no old cache entry can match it).
-IDENTIFICATION_VERSION = "2026-11-28.39-time-offsets"
+IDENTIFICATION_VERSION = "2026-11-28.36-returning-tracks"
 
 
 @dataclass
@@ -118,6 +118,7 @@ def fit_report(fit) -> dict:
         "em_steps": int(fit.iterations),
         "converged": bool(fit.converged),
         "seconds": float(fit.seconds),
+        "returning_tracks_split": int(fit.returning_tracks_split),
     }
 
 

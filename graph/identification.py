@@ -77,6 +77,14 @@ E-step's expected squared residuals that the posterior holds over the intervals 
 EM's estimate (never less), the level is named in ``noise_undetermined``, and the long-run
 levels are measured from there (:mod:`graph.motion_correlation`, with the same rule and a
 prior). The gyro bias's sigma is a sample's sigma over the square root of that information.
+
+Tracks that return after a gap (a loop's, a room's) are identified as the per-frame filters
+see them (:func:`ekf.driver.carry_tracks`): a landmark is carried through its gap while at
+most ``ekf.driver.MAX_CARRIED`` are in gaps at once (a room's few dozen), and the rest return
+as new landmarks. The noise levels are in the residuals next to each observation, not in the
+loop a returning landmark closes, while such a landmark ties poses far apart and makes every
+E-step's solve and marginals cost what the whole loop costs (``returning_tracks_split``
+counts the returns identified as new landmarks; the estimators keep them as one).
 """
 
 from __future__ import annotations
@@ -91,6 +99,7 @@ from scipy.stats import chi2
 
 from vislam.ekf.config import VELOCITY_PAIRINGS, FilterConfig
 from vislam.ekf.conventions import estimate_cov_to_gtsam
+from vislam.ekf.driver import carry_tracks
 from vislam.ekf.errors import EstimationError
 from vislam.ekf.model import interval_sigma_factor, long_run_pixel_sigma, with_extrinsic, without_radial
 from vislam.ekf.sequence import Sequence
@@ -207,6 +216,8 @@ class ModelFit:
     iterations: int = 0
     converged: bool = False
     seconds: float = 0.0
+    #: returns of tracks identified as new landmarks (module docstring; ekf.driver.carry_tracks)
+    returning_tracks_split: int = 0
     solution: object = None  # graph.smoother.SmootherSolution under the identified model
     config: FilterConfig | None = None  # the identified interval sigmas and pairing
 
@@ -496,6 +507,7 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     t0 = time.perf_counter()
     if seq.n_frames < 3:
         raise EstimationError("calibrate: needs at least 3 frames")
+    seq, n_split = carry_tracks(seq)  # returning tracks as the filters see them (docstring)
     # Every round to the same tolerance: the bias and pairing decisions compare likelihoods
     # of nearby solves, and a looser rejection round moved them across the BIC threshold
     # (docs/findings.md).
@@ -703,6 +715,7 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
         iterations=total_steps,
         converged=em.converged,
         seconds=time.perf_counter() - t0,
+        returning_tracks_split=n_split,
         solution=solution,
         config=cfg,
     )

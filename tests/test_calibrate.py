@@ -142,6 +142,7 @@ def test_calibrate_writes_a_model_every_command_reads(drive, tmp_path, capsys):
     assert ("time offsets of the streams against the camera: not estimated (--time-offsets "
             "estimates them)") in text
     assert "stamps late against the camera's" not in text
+    assert "returning tracks" not in text  # a road's tracks never return (tests/regression/test_loop_drive.py)
     model = Model.from_toml(model_file)
     assert model.velocity_time_offset is None and model.gyro_time_offset is None
     assert model.velocity_pairing == "mean" and 0.3 < model.velocity_sigma[0] < 0.7

@@ -194,6 +194,7 @@ def undetermined_lines(fit) -> list[str]:
 
 def report(name: str, frames: int, fit, config) -> str:
     """The identified model beside the settings it replaces, and a verdict per quantity."""
+    from vislam.ekf.driver import MAX_CARRIED
     from vislam.ekf.model import EXTRINSIC_COMPONENTS, long_run_pixel_sigma
     from vislam.graph.extrinsic import lever_arm, lever_arm_covariance
 
@@ -201,6 +202,9 @@ def report(name: str, frames: int, fit, config) -> str:
     lines = [
         f"calibrate {name} ({frames} frames): EM around the smoother, {fit.iterations} steps "
         f"({'converged' if fit.converged else 'NOT converged'}), {fit.seconds:.1f} s",
+        *([f"returning tracks: {fit.returning_tracks_split} returns identified as new landmarks "
+           f"(more than {MAX_CARRIED} in gaps at once; the estimators keep them as one)"]
+          if fit.returning_tracks_split else []),
         "",
         "| quantity | identified | sigma | file / settings as given |",
         "|---|---|---|---|",
