@@ -9,6 +9,18 @@ behind either camera (GTSAM's stereo factor has a zero Jacobian there and iSAM2 
 throw an indeterminate-system error). Later observations whose residual against the current
 estimate exceeds ``4 * settings.outlier_threshold_px`` are not added.
 
+Returning tracks (a loop's, a room's): each iSAM2 update re-eliminates the Bayes tree from the
+cliques its new factors touch to the root, and a landmark last seen long ago sits deep in the
+tree, so an update that re-observes it re-eliminates everything since (docs/findings.md). So
+``smoother-isam2`` holds such observations back (a landmark unseen for more than
+``settings.isam2_return_batch`` frames, and every later observation of it while it waits) and
+adds them together, gated against the estimates of then, with the frame that ends the batch;
+that update orders only the frame's new variables last, not the returning landmarks. Held
+observations enter at linearisation points up to a batch old, so on a drive with returns the
+final relinearisations use ``settings.isam2_return_relinearize_threshold`` (0.01) instead of
+``isam2_relinearize_threshold``. A drive whose tracks never return is not affected (a gap
+that track cleaning made, by taking out an observation, is not a return).
+
 The fixed-lag smoother (GTSAM's ``IncrementalFixedLagSmoother``, iSAM2 underneath) runs the same
 loop but keeps only the last ``settings.fixed_lag_s`` seconds: a pose leaves the window that
 long after its frame, a landmark that long after its last observation, marginalised into a prior
@@ -110,15 +122,25 @@ def _add_gap_prior(graph: gtsam.NonlinearFactorGraph, isam, poses: np.ndarray, k
     return 1
 
 
+def tracks_return(seq: Sequence, gap: int) -> bool:
+    """Whether a track of ``seq`` is seen again more than ``gap`` frames after it was last
+    seen (module docstring: returning tracks)."""
+    order = np.lexsort((seq.obs.frame_index, seq.obs.track))
+    track, frame = seq.obs.track[order], seq.obs.frame_index[order]
+    return bool(np.any((track[1:] == track[:-1]) & (frame[1:] - frame[:-1] > gap)))
+
+
 def _estimator_name(lag: float | None) -> str:
     """``smoother-isam2``, or ``smoother-fixed-lag`` with a window ``lag``."""
     return "smoother-isam2" if lag is None else "smoother-fixed-lag"
 
 
 def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
-                progress: Callable | None = None, lag: float | None = None) -> Isam2Result:
+                progress: Callable | None = None, lag: float | None = None,
+                source: Sequence | None = None) -> Isam2Result:
     """Run iSAM2 over an already cleaned sequence; with ``lag`` (seconds) the fixed-lag
-    smoother instead (see the module docstring)."""
+    smoother instead (see the module docstring). ``source`` is the drive before cleaning: its
+    returning tracks are the ones held back (a gap that cleaning made is not a return)."""
     T, M, calib = seq.n_frames, seq.n_tracks, seq.calibration
     tick = time.perf_counter()
     deltas, motion_covs = relative_motions(seq, config)
@@ -131,8 +153,13 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     n_prior = 0
     build_s = time.perf_counter() - tick
 
+    # Returning tracks (module docstring): their observations wait and enter together.
+    batch = int(settings.isam2_return_batch) if lag is None else 0
+    returns = batch > 1 and tracks_return(seq if source is None else source, batch)
+    batch = batch if returns else 0
     params = gtsam.ISAM2Params()
-    params.setRelinearizeThreshold(settings.isam2_relinearize_threshold)
+    params.setRelinearizeThreshold(settings.isam2_return_relinearize_threshold if returns
+                                   else settings.isam2_relinearize_threshold)
     skip = settings.isam2_relinearize_skip if lag is None else settings.fixed_lag_relinearize_skip
     params.relinearizeSkip = max(int(skip), 1)
     params.enableRelinearization = skip > 0
@@ -150,6 +177,17 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     used = np.zeros(len(rows), dtype=bool)
     initialised = np.zeros(T, dtype=np.int64)
     optimise_s = 0.0
+    last_added = np.full(M, -1, dtype=np.int64)  # frame of each landmark's latest factor
+    waiting = np.zeros(M, dtype=bool)  # the landmark has observations waiting
+    held: list[np.ndarray] = []  # rows waiting
+    held_since = -1  # frame of the oldest waiting row
+    n_held = 0
+
+    def gate(obs_rows: np.ndarray) -> np.ndarray:
+        """The loose gate: residual against the current estimates, depth."""
+        residual, depth = stereo_residuals(poses, landmark_est, calib, rows.subset(obs_rows))
+        return ((np.linalg.norm(residual, axis=1) <= _GATE_FACTOR * settings.outlier_threshold_px)
+                & (depth >= settings.min_depth))
 
     for k in range(T):
         tick = time.perf_counter()
@@ -177,11 +215,19 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
             idx = idx[~window.gone[tracks]]
             tracks = rows.track[idx]
         old = idx[in_graph[tracks]]
+        if batch and old.size:  # returning landmarks' observations wait (module docstring)
+            back = waiting[rows.track[old]] | (k - last_added[rows.track[old]] > batch)
+            if back.any():
+                held.append(old[back])
+                waiting[rows.track[old[back]]] = True
+                held_since = k if held_since < 0 else held_since
+                n_held += int(back.sum())
+                old = old[~back]
         if old.size:
-            residual, depth = stereo_residuals(poses, landmark_est, calib, rows.subset(old))
-            ok = (np.linalg.norm(residual, axis=1) <= _GATE_FACTOR * settings.outlier_threshold_px) & (depth >= settings.min_depth)
+            ok = gate(old)
             noise.add_stereo_factors(graph, rows.subset(old[ok]))  # rows of frame k
             used[old[ok]] = True
+            last_added[rows.track[old[ok]]] = k
             rejected[k] += int(np.sum(~ok))
         # second observations: triangulate, check cheirality in both cameras, add
         new = [i for i in idx if not in_graph[rows.track[i]] and not dropped[rows.track[i]]]
@@ -210,11 +256,37 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
             graph.add(gtsam.PriorFactorPoint3(L(j), point[j], noise.landmark_prior))
             noise.add_stereo_factors(graph, pair)
             used[[first, i]] = True
+            last_added[j] = k
+        if held and (k - held_since + 1 >= batch or k + 1 == T):  # the waiting observations
+            back = np.concatenate(held)
+            for j in np.unique(rows.frame[back]):
+                if j < k:
+                    poses[j] = isam.calculateEstimatePose3(X(int(j))).matrix()
+            for j in np.unique(rows.track[back]):
+                landmark_est[j] = isam.calculateEstimatePoint3(L(int(j)))
+            ok = gate(back)
+            np.add.at(rejected, rows.frame[back[~ok]], 1)
+            back = back[ok]
+            noise.add_stereo_factors(graph, rows.subset(back))
+            used[back] = True
+            np.maximum.at(last_added, rows.track[back], rows.frame[back])
+            waiting[:] = False
+            held, held_since = [], -1
+            flushed = np.unique(rows.track[back])
+        else:
+            flushed = None
         build_s += time.perf_counter() - tick
 
         tick = time.perf_counter()
         try:
-            if window is None:
+            if flushed is not None:  # only the frame's new variables ordered last
+                update = gtsam.ISAM2UpdateParams()
+                last = gtsam.KeyGroupMap()
+                for key in values.keys():
+                    last.insert2(key, 1)
+                update.constrainedKeys = last
+                isam.update(graph, values, update)
+            elif window is None:
                 isam.update(graph, values)
             else:
                 stamps = {X(k): times[k]}
@@ -229,8 +301,8 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
             raise estimation_error(exc, f"adding frame {k} to the incremental smoother",
                                    estimator=name) from None
         optimise_s += time.perf_counter() - tick
-        # refresh the landmarks seen now (cheap: only this frame's)
-        for j in tracks[in_graph[tracks]]:
+        # refresh the landmarks seen now (cheap: only this frame's, and the waiting ones')
+        for j in tracks[in_graph[tracks]] if flushed is None else np.union1d(tracks[in_graph[tracks]], flushed):
             landmark_est[j] = isam.calculateEstimatePoint3(L(int(j)))
         if progress is not None and ((k + 1) % 10 == 0 or k + 1 == T):
             progress(k + 1, T)
@@ -239,7 +311,8 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     for first in pending.values():
         rejected[rows.frame[first]] += 1
     tracks = np.flatnonzero(in_graph)
-    timing = {"build_s": build_s, "initialise_s": 0.0, "optimise_s": optimise_s, "marginals_s": 0.0}
+    timing = {"build_s": build_s, "initialise_s": 0.0, "optimise_s": optimise_s, "marginals_s": 0.0,
+              "held_observations": n_held}
     if window is not None:
         return Isam2Result(
             isam=isam, poses=window.poses, landmarks=window.landmarks, tracks=tracks,
@@ -344,13 +417,14 @@ def _run_isam2(
     T, M = cleaned.n_frames, cleaned.n_tracks
     factorization = settings.isam2_factorization
     try:
-        result = isam2_solve(cleaned, config, settings, progress, lag)
+        result = isam2_solve(cleaned, config, settings, progress, lag, source=seq)
     except EstimationError as exc:
         if factorization != "cholesky" or "indeterminate" not in str(exc):
             raise
         log.warning("%s; running again with QR factorisation", exc)
         factorization = f"qr (cholesky failed: {exc})"
-        result = isam2_solve(cleaned, config, settings.replace(isam2_factorization="qr"), progress, lag)
+        result = isam2_solve(cleaned, config, settings.replace(isam2_factorization="qr"), progress,
+                             lag, source=seq)
     timing = result.timing
     est = Estimate.empty(name, cleaned.timestamps, M)
     est.poses = result.poses

@@ -102,6 +102,16 @@ class SmootherSettings:
     #: Cholesky factorisation fails ("indeterminate system": an ill-conditioned system) is
     #: repeated with QR, which does not square the condition number.
     isam2_factorization: str = "cholesky"
+    #: Returning tracks in iSAM2: an observation of a landmark unseen for more than this many
+    #: frames waits, with the later observations of the same landmarks, until this many frames
+    #: have passed, and they enter in one update (each update that touches a returning landmark
+    #: re-eliminates the Bayes tree from its clique to the root: the whole loop); 1: each frame
+    #: alone. Drives whose tracks never return are not affected.
+    isam2_return_batch: int = 10
+    #: iSAM2's relinearisation threshold (the final relinearisations') on a drive whose returning
+    #: observations waited: they entered at linearisation points up to ``isam2_return_batch``
+    #: frames old, so every variable that moved more than this is relinearised at the end.
+    isam2_return_relinearize_threshold: float = 0.01
     #: The fixed-lag smoother's window (``smoother-fixed-lag``), seconds: a pose leaves it this
     #: long after its frame, a landmark this long after its last observation.
     fixed_lag_s: float = 3.0
@@ -158,6 +168,8 @@ SMOOTHER_RULES: dict[str, Rule] = {
     "isam2_relinearize_skip": Rule("int", 0, 1_000_000),
     "isam2_final_relinearizations": Rule("int", 0, 1000),
     "isam2_factorization": Rule("choice", choices=("qr", "cholesky")),
+    "isam2_return_batch": Rule("int", 1, 1_000_000),
+    "isam2_return_relinearize_threshold": Rule("float", 0.0, 1e6, lo_open=True),
     "fixed_lag_s": Rule("float", 0.0, 1e6, lo_open=True),  # s
     "fixed_lag_relinearize_skip": Rule("int", 0, 1_000_000),
 }

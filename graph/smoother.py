@@ -126,7 +126,7 @@ def initial_trajectory(seq: Sequence, cleaned: Sequence, config: FilterConfig, i
     if init == "isam2":
         from vislam.graph.isam2 import isam2_solve
 
-        return isam2_solve(cleaned, config, settings).poses, "isam2"
+        return isam2_solve(cleaned, config, settings, source=seq).poses, "isam2"
     return _finite_dead_reckoning(cleaned, config), "dead-reckoning"
 
 
