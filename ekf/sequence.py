@@ -11,7 +11,7 @@ per observation, :mod:`eval.loader`) maps onto these rows directly. Pixels are s
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -161,6 +161,19 @@ class Sequence:
     @property
     def n_frames(self) -> int:
         return int(self.timestamps.size)
+
+    def window(self, start: int, stop: int) -> "Sequence":
+        """Frames ``start`` to ``stop - 1`` of this drive as a drive of their own: their stamps,
+        velocities and observations, the track indices and the calibration unchanged."""
+        if not 0 <= start < stop <= self.n_frames:
+            raise ValueError(f"window: frames [{start}, {stop}) outside the drive's "
+                             f"{self.n_frames}")
+        a, b = self.obs.frame_ptr[start], self.obs.frame_ptr[stop]
+        obs = Observations(self.obs.frame_ptr[start:stop + 1] - a, self.obs.track[a:b],
+                           self.obs.z[a:b])
+        return replace(self, timestamps=self.timestamps[start:stop],
+                       linear_velocity=self.linear_velocity[start:stop],
+                       angular_velocity=self.angular_velocity[start:stop], obs=obs)
 
     @property
     def dt(self) -> np.ndarray:

@@ -85,6 +85,13 @@ as new landmarks. The noise levels are in the residuals next to each observation
 loop a returning landmark closes, while such a landmark ties poses far apart and makes every
 E-step's solve and marginals cost what the whole loop costs (``returning_tracks_split``
 counts the returns identified as new landmarks; the estimators keep them as one).
+
+A drive longer than ``MAX_FRAMES`` (1,500 frames, two and a half minutes at 10 Hz) is
+identified on its central ``MAX_FRAMES`` frames (``ModelFit.frames``): that is 1,500 intervals
+for each white level (``sd(log sigma)`` about ``1 / sqrt(2 n)``, 2 %, where vision constrains
+every interval) and 30 blocks of 5 s for the slow errors, while each E-step costs what the
+whole drive costs. The model holds for the whole drive as far as its noise is stationary;
+``max_frames=None`` (``vislam calibrate --max-frames 0``) reads every frame.
 """
 
 from __future__ import annotations
@@ -113,6 +120,19 @@ log = logging.getLogger(__name__)
 
 #: Level of the chi-square test reported beside the BIC decision on a constant gyro bias.
 BIAS_TEST_LEVEL = 0.99
+
+#: The most frames identification reads (module docstring): the drive's central stretch of
+#: this many frames; ``max_frames=None`` reads the whole drive.
+MAX_FRAMES = 1500
+
+
+def identification_frames(n_frames: int, max_frames: int | None = MAX_FRAMES) -> tuple[int, int]:
+    """The frames ``[start, stop)`` identification reads: the whole drive, or its central
+    ``max_frames``."""
+    if max_frames is None or n_frames <= max_frames:
+        return 0, n_frames
+    start = (n_frames - max_frames) // 2
+    return start, start + max_frames
 
 
 @dataclass
@@ -216,6 +236,9 @@ class ModelFit:
     iterations: int = 0
     converged: bool = False
     seconds: float = 0.0
+    #: the frames ``[start, stop)`` of the drive the model was identified on, and its length
+    frames: tuple[int, int] = (0, 0)
+    n_frames: int = 0
     #: returns of tracks identified as new landmarks (module docstring; ekf.driver.carry_tracks)
     returning_tracks_split: int = 0
     solution: object = None  # graph.smoother.SmootherSolution under the identified model
@@ -491,14 +514,15 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
                    pairings: tuple[str, ...] = VELOCITY_PAIRINGS,
                    max_iterations: int = 12, rtol: float = 0.01,
                    extrinsic: bool = True, radial: bool = True,
-                   time_offsets: bool = False) -> ModelFit:
+                   time_offsets: bool = False, max_frames: int | None = MAX_FRAMES) -> ModelFit:
     """The model of ``seq`` by EM (module docstring): per-axis velocity and gyro sigma, pixel
     sigma, the velocity pairing with the largest likelihood, a gyro bias when a
     likelihood-ratio supports it (BIC), (``extrinsic``) the camera-IMU extrinsic with its
     covariance and (``radial``) a radial lens term of the pixels when its Wald statistic
     passes BIC (:mod:`graph.radial`), and (``time_offsets``) the velocity and gyro streams'
     time offsets against the camera where the data support them (BIC, :mod:`graph.time_offset`).
-    ``config`` gives the starting point and every other filter setting; ``settings`` the
+    On a drive longer than ``max_frames``, its central ``max_frames`` frames only
+    (:func:`identification_frames`). ``config`` gives the starting point and every other filter setting; ``settings`` the
     smoother's."""
     from vislam.graph.radial import radial_profile
     from vislam.graph.smoother import solve_smoother
@@ -507,6 +531,12 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     t0 = time.perf_counter()
     if seq.n_frames < 3:
         raise EstimationError("calibrate: needs at least 3 frames")
+    if max_frames is not None and max_frames < 3:
+        raise EstimationError(f"calibrate: max_frames must be at least 3, got {max_frames}")
+    n_frames = seq.n_frames
+    frames = identification_frames(n_frames, max_frames)
+    if frames != (0, n_frames):
+        seq = seq.window(*frames)
     seq, n_split = carry_tracks(seq)  # returning tracks as the filters see them (docstring)
     # Every round to the same tolerance: the bias and pairing decisions compare likelihoods
     # of nearby solves, and a looser rejection round moved them across the BIC threshold
@@ -716,6 +746,8 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
         converged=em.converged,
         seconds=time.perf_counter() - t0,
         returning_tracks_split=n_split,
+        frames=frames,
+        n_frames=n_frames,
         solution=solution,
         config=cfg,
     )

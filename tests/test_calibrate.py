@@ -170,12 +170,42 @@ def test_calibrate_never_replaces_a_users_file_and_checks_its_flags(drive, tmp_p
         (["--out", str(mine)], "was not written by vislam"),
         (["--pairings", "mean,sideways"], "--pairings"),
         (["--max-iterations", "1"], "--max-iterations"),
+        (["--max-frames", "2"], "--max-frames"),
+        (["--max-frames", "-5"], "--max-frames"),
         (["--out", str(tmp_path)], "is a folder"),
     ):
         assert main(["calibrate", str(drive), *argv]) == 2
         err = capsys.readouterr().err
         assert words in err and len(err.strip().splitlines()) == 1
     assert mine.read_text() == "my own notes\n"
+
+
+def test_identification_reads_the_central_frames_of_a_longer_drive(drive, capsys):
+    """A drive longer than --max-frames (vislam bench: graph.identification.MAX_FRAMES) is
+    identified on its central stretch, and calibrate says which frames it read."""
+    from vislam.graph.identification import MAX_FRAMES, identification_frames
+
+    assert identification_frames(4541) == (1520, 1520 + MAX_FRAMES)
+    assert identification_frames(1224) == (0, 1224) == identification_frames(1224, None)
+    assert identification_frames(61, 40) == (10, 50)
+    assert main(["calibrate", str(drive), "--max-frames", "40", "--pairings", "mean",
+                 "--extrinsic", "file", "--max-iterations", "3"]) == 0
+    assert "identified on frames 10-49 of 60: the drive's central 40" in capsys.readouterr().out
+
+
+def test_a_window_of_a_drive_is_a_drive_of_its_own_frames():
+    from vislam.eval.simulate import SimConfig, simulate
+
+    seq = simulate(SimConfig(seed=2, n_frames=30)).sequence
+    part = seq.window(10, 20)
+    assert part.n_frames == 10 and part.n_tracks == seq.n_tracks
+    np.testing.assert_array_equal(part.timestamps, seq.timestamps[10:20])
+    np.testing.assert_array_equal(part.angular_velocity, seq.angular_velocity[10:20])
+    for k in range(10):
+        for a, b in zip(part.frame(k), seq.frame(10 + k)):
+            np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="outside"):
+        seq.window(20, 31)
 
 
 def test_a_profile_without_a_minimum_means_no_radial_term(monkeypatch):

@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="velocity pairings to compare (default current,next,mean)")
     parser.add_argument("--max-iterations", type=int, default=12, metavar="N",
                         help="EM steps per pairing at most (default 12)")
+    parser.add_argument("--max-frames", type=int, default=None, metavar="N",
+                        help="identify on the drive's central N frames at most (default 1500, "
+                             "as vislam bench does; 0: every frame)")
     parser.add_argument("--extrinsic", choices=("identify", "file"), default="identify",
                         help="identify the camera-IMU extrinsic (default) or keep the file's")
     parser.add_argument("--time-offsets", action="store_true",
@@ -63,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from vislam.eval.atomic import write_text
     from vislam.eval.loader import load_sequence
     from vislam.eval.commands.options import filter_config_from_args, smoother_settings_from_args
-    from vislam.graph.identification import identify_model
+    from vislam.graph.identification import MAX_FRAMES, identify_model
 
     config = filter_config_from_args(args)
     smoother = smoother_settings_from_args(args).replace(compute_marginals=False)
@@ -74,6 +77,9 @@ def run(args: argparse.Namespace) -> int:
                          f"{', '.join(VELOCITY_PAIRINGS)}")
     if not 3 <= args.max_iterations <= 1000:
         raise InputError(f"--max-iterations must be between 3 and 1000, got {args.max_iterations}")
+    max_frames = MAX_FRAMES if args.max_frames is None else (args.max_frames or None)
+    if args.max_frames is not None and args.max_frames != 0 and args.max_frames < 3:
+        raise InputError(f"--max-frames must be 0 (every frame) or at least 3, got {args.max_frames}")
     out = Path(args.out) if args.out else None
     if out is not None:
         _check_out(out, args.force)
@@ -82,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     fit = identify_model(seq, config, smoother, pairings=pairings,
                          max_iterations=args.max_iterations,
                          extrinsic=args.extrinsic == "identify",
-                         time_offsets=args.time_offsets)
+                         time_offsets=args.time_offsets, max_frames=max_frames)
     how = "EM around the smoother" + ("" if args.extrinsic == "identify"
                                       else "; the extrinsic is the file's, not identified")
     model = fit.to_model(f"vislam calibrate {Path(args.file).name} ({how})")
@@ -202,6 +208,9 @@ def report(name: str, frames: int, fit, config) -> str:
     lines = [
         f"calibrate {name} ({frames} frames): EM around the smoother, {fit.iterations} steps "
         f"({'converged' if fit.converged else 'NOT converged'}), {fit.seconds:.1f} s",
+        *([f"identified on frames {fit.frames[0]}-{fit.frames[1] - 1} of {fit.n_frames}: the drive's "
+           f"central {fit.frames[1] - fit.frames[0]} (--max-frames 0 reads every frame)"]
+          if fit.frames != (0, fit.n_frames) else []),
         *([f"returning tracks: {fit.returning_tracks_split} returns identified as new landmarks "
            f"(more than {MAX_CARRIED} in gaps at once; the estimators keep them as one)"]
           if fit.returning_tracks_split else []),
