@@ -21,6 +21,16 @@ final relinearisations use ``settings.isam2_return_relinearize_threshold`` (0.01
 ``isam2_relinearize_threshold``. A drive whose tracks never return is not affected (a gap
 that track cleaning made, by taking out an observation, is not a return).
 
+After each update iSAM2 back-substitutes only where the solution moved by more than
+``settings.isam2_wildfire_threshold`` (GTSAM's wildfire; 0.01, GTSAM's default is 0.001): the
+frame's new pose and the landmarks it sees are exact, older variables may be that stale, and the
+back-substitution of the whole drive after every frame is what made a long drive's cost grow
+with its length. The final relinearisations decide on the full solution and the estimate is
+``calculateBestEstimate`` (a full back-substitution), so the result does not depend on that
+threshold (with ``calculateEstimate`` it did: docs/findings.md). The fixed-lag smoother keeps
+GTSAM's threshold, as it reports each variable when it leaves the window, and reads the
+variables still in the window at the end from the full back-substitution too.
+
 The fixed-lag smoother (GTSAM's ``IncrementalFixedLagSmoother``, iSAM2 underneath) runs the same
 loop but keeps only the last ``settings.fixed_lag_s`` seconds: a pose leaves the window that
 long after its frame, a landmark that long after its last observation, marginalised into a prior
@@ -164,6 +174,8 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     params.relinearizeSkip = max(int(skip), 1)
     params.enableRelinearization = skip > 0
     params.setFactorization(settings.isam2_factorization.upper())
+    if lag is None:  # the final estimate is solved in full (module docstring)
+        params.setOptimizationParams(gtsam.ISAM2GaussNewtonParams(settings.isam2_wildfire_threshold))
     isam = gtsam.ISAM2(params) if lag is None else gtsam.IncrementalFixedLagSmoother(lag, params)
     times = seq.timestamps - seq.timestamps[0]
     window = _Window(T, M) if lag is not None else None
@@ -321,9 +333,12 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
         )
     tick = time.perf_counter()
     try:
+        final = gtsam.ISAM2UpdateParams()
+        final.force_relinearize = True
+        final.forceFullSolve = True  # the relinearisation decided on the full solution
         for _ in range(settings.isam2_final_relinearizations):
-            isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), [], None, None, None, True)
-        estimate = isam.calculateEstimate()
+            isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), final)
+        estimate = isam.calculateBestEstimate()
     except RuntimeError as exc:
         raise estimation_error(exc, "computing the iSAM2 estimate",
                                estimator="smoother-isam2") from None
@@ -355,15 +370,21 @@ class _Window:
 
     def leave(self, smoother, poses, times, in_graph, before: float, k: int) -> None:
         """Record the poses (up to frame ``k``) and landmarks whose time is before ``before``:
-        GTSAM marginalises them at the next update."""
+        GTSAM marginalises them at the next update. At the end of the drive (``before``
+        infinite) every variable left is read from the full back-substitution."""
+        if np.isinf(before):
+            best = smoother.getISAM2().calculateBestEstimate()
+            pose, point = best.atPose3, best.atPoint3
+        else:
+            pose, point = smoother.calculateEstimatePose3, smoother.calculateEstimatePoint3
         while self.first_pose <= k and times[self.first_pose] < before:
             j = self.first_pose
-            self.poses[j] = smoother.calculateEstimatePose3(X(j)).matrix()
+            self.poses[j] = pose(X(j)).matrix()
             self.pose_cov[j] = smoother.marginalCovariance(X(j))
             poses[j] = self.poses[j]
             self.first_pose += 1
         for j in np.flatnonzero(in_graph & ~self.gone & (self.last_seen < before)):
-            self.landmarks[j] = smoother.calculateEstimatePoint3(L(int(j)))
+            self.landmarks[j] = point(L(int(j)))
             self.landmark_cov[j] = smoother.marginalCovariance(L(int(j)))
             self.gone[j] = True
 

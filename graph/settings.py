@@ -108,6 +108,10 @@ class SmootherSettings:
     #: re-eliminates the Bayes tree from its clique to the root: the whole loop); 1: each frame
     #: alone. Drives whose tracks never return are not affected.
     isam2_return_batch: int = 10
+    #: iSAM2's back-substitution after each update stops where the solution moved by less than
+    #: this (GTSAM's wildfire threshold; its default is 0.001): the frame's new variables are
+    #: exact, older ones at most this stale; the final estimate is solved in full whatever it is.
+    isam2_wildfire_threshold: float = 0.01
     #: iSAM2's relinearisation threshold (the final relinearisations') on a drive whose returning
     #: observations waited: they entered at linearisation points up to ``isam2_return_batch``
     #: frames old, so every variable that moved more than this is relinearised at the end.
@@ -169,6 +173,7 @@ SMOOTHER_RULES: dict[str, Rule] = {
     "isam2_final_relinearizations": Rule("int", 0, 1000),
     "isam2_factorization": Rule("choice", choices=("qr", "cholesky")),
     "isam2_return_batch": Rule("int", 1, 1_000_000),
+    "isam2_wildfire_threshold": Rule("float", 0.0, 1e6),
     "isam2_return_relinearize_threshold": Rule("float", 0.0, 1e6, lo_open=True),
     "fixed_lag_s": Rule("float", 0.0, 1e6, lo_open=True),  # s
     "fixed_lag_relinearize_skip": Rule("int", 0, 1_000_000),
