@@ -58,6 +58,16 @@ from vislam.ekf.sequence import Observations, Sequence
 MAX_CARRIED = 100
 
 
+def track_returns(seq: Sequence) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every return of a track after a gap (by track, then frame): the observation row where it
+    returns, the frame it was last seen in before, and the frame it returns in."""
+    frame = seq.obs.frame_index
+    order = np.lexsort((frame, seq.obs.track))
+    t, f = seq.obs.track[order], frame[order]
+    back = np.flatnonzero((t[1:] == t[:-1]) & (f[1:] - f[:-1] > 1)) + 1
+    return order[back], f[back - 1], f[back]
+
+
 def carried_gaps(seq: Sequence, max_carried: int = MAX_CARRIED) -> tuple[np.ndarray, np.ndarray]:
     """The gaps of ``seq``'s tracks and whether each is carried (module docstring).
 
@@ -66,19 +76,14 @@ def carried_gaps(seq: Sequence, max_carried: int = MAX_CARRIED) -> tuple[np.ndar
     and a bool per gap: True when the landmark is carried through the gap, False when more than
     ``max_carried`` landmarks were in gaps at some frame of it and it was among those unseen the
     longest (ties: the lower track index first)."""
-    obs = seq.obs
-    frame = obs.frame_index
-    order = np.lexsort((frame, obs.track))
-    t, f = obs.track[order], frame[order]
-    back = np.flatnonzero((t[1:] == t[:-1]) & (f[1:] - f[:-1] > 1)) + 1
-    rows = order[back]
-    carried = np.ones(back.size, dtype=bool)
-    if back.size <= max_carried:
+    rows, last_seen, returns = track_returns(seq)
+    carried = np.ones(rows.size, dtype=bool)
+    if rows.size <= max_carried:
         return rows, carried
-    last_seen, returns = f[back - 1], f[back]
+    track = seq.obs.track[rows]
     starts = np.argsort(last_seen, kind="stable")  # a gap opens the frame after last_seen
     heap: list[tuple[int, int, int]] = []
-    open_now = np.zeros(back.size, dtype=bool)
+    open_now = np.zeros(rows.size, dtype=bool)
     ends = np.argsort(returns, kind="stable")
     n_open = i_start = i_end = 0
     for k in np.unique(last_seen + 1):
@@ -93,7 +98,7 @@ def carried_gaps(seq: Sequence, max_carried: int = MAX_CARRIED) -> tuple[np.ndar
             if returns[g] > k:
                 open_now[g] = True
                 n_open += 1
-                heapq.heappush(heap, (int(last_seen[g]), int(t[back[g]]), int(g)))
+                heapq.heappush(heap, (int(last_seen[g]), int(track[g]), int(g)))
             i_start += 1
         while n_open > max_carried:
             _, _, g = heapq.heappop(heap)

@@ -55,6 +55,7 @@ import numpy as np
 
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import EstimationError
+from vislam.ekf.driver import track_returns
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.sequence import Sequence
 from vislam.graph.factors import (
@@ -135,9 +136,8 @@ def _add_gap_prior(graph: gtsam.NonlinearFactorGraph, isam, poses: np.ndarray, k
 def tracks_return(seq: Sequence, gap: int) -> bool:
     """Whether a track of ``seq`` is seen again more than ``gap`` frames after it was last
     seen (module docstring: returning tracks)."""
-    order = np.lexsort((seq.obs.frame_index, seq.obs.track))
-    track, frame = seq.obs.track[order], seq.obs.frame_index[order]
-    return bool(np.any((track[1:] == track[:-1]) & (frame[1:] - frame[:-1] > gap)))
+    _, last_seen, returns = track_returns(seq)
+    return bool(np.any(returns - last_seen > gap))
 
 
 def _estimator_name(lag: float | None) -> str:
@@ -163,12 +163,13 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     n_prior = 0
     build_s = time.perf_counter() - tick
 
-    # Returning tracks (module docstring): their observations wait and enter together.
-    batch = int(settings.isam2_return_batch) if lag is None else 0
-    returns = batch > 1 and tracks_return(seq if source is None else source, batch)
-    batch = batch if returns else 0
+    # Returning tracks (module docstring): their observations wait, and enter together every
+    # ``batch`` frames; 0 where none waits.
+    batch = int(settings.isam2_return_batch)
+    if lag is not None or batch < 2 or not tracks_return(seq if source is None else source, batch):
+        batch = 0
     params = gtsam.ISAM2Params()
-    params.setRelinearizeThreshold(settings.isam2_return_relinearize_threshold if returns
+    params.setRelinearizeThreshold(settings.isam2_return_relinearize_threshold if batch
                                    else settings.isam2_relinearize_threshold)
     skip = settings.isam2_relinearize_skip if lag is None else settings.fixed_lag_relinearize_skip
     params.relinearizeSkip = max(int(skip), 1)
