@@ -1,12 +1,10 @@
-"""The simulator's drive shapes (issue 36): the road unchanged to the byte, a loop that comes back
+"""The simulator's drive shapes (issue 36): the road unchanged, a loop that comes back
 to its start and sees its first landmarks again, a room whose landmarks are seen again and
 again with stops; every one seeded."""
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-
 import numpy as np
 import pytest
 
@@ -14,32 +12,27 @@ from vislam.ekf.errors import InputError
 from vislam.eval.sim_config import DEFAULT_SIM, SCENARIO_DEFAULTS, SimConfig, scenario_config
 from vislam.eval.simulate import simulate
 
-#: sha256 of the road drive's arrays (measurements and ground truth), computed at b15f9a1, before
-#: the scenarios existed (:func:`_digest`): the road stays the same to the byte.
-ROAD_DIGESTS = {
-    "default": ({}, "b697e3c5f71407163e06b00ecfb5f60619a31c225258a8fdbad9747b94365931"),
-    "seed7_120": ({"seed": 7, "n_frames": 120},
-                  "e74dff378a5ff4e86a7087f68b841171313d600c81223e8d406658151cf4d540"),
-    "faults": ({"seed": 3, "n_frames": 150, "repeat_event_rate": 0.1, "pixel_correlation": 0.5,
-                "velocity_correlation": 0.3, "gyro_bias": (0.01, 0.0, 0.005),
-                "velocity_pairing": "next", "radial_k1": 0.01, "file_extrinsic_fault": "kitti"},
-               "13e446c7702402e7d30004d8cd09242767d423dc795057f0def4af347db021b9"),
-    "noise_free": ({"seed": 2, "n_frames": 100, "noise_free": True},
-                   "4f827548c030765cce3e26bf6bd328edc7e0c1313441782d5c876de8f6ff6161"),
+from tests.fingerprint import assert_same_fingerprint, fingerprint, pinned
+
+#: The road drives pinned in tests/sim_fingerprints.json (tests/fingerprint.py), first pinned by
+#: sha256 at b15f9a1, before the scenarios existed: the road stays the same (to 1e-12: its last
+#: bits follow the processor's BLAS kernel).
+ROAD_CASES = {
+    "default": {},
+    "seed7_120": {"seed": 7, "n_frames": 120},
+    "faults": {"seed": 3, "n_frames": 150, "repeat_event_rate": 0.1, "pixel_correlation": 0.5,
+               "velocity_correlation": 0.3, "gyro_bias": (0.01, 0.0, 0.005),
+               "velocity_pairing": "next", "radial_k1": 0.01, "file_extrinsic_fault": "kitti"},
+    "noise_free": {"seed": 2, "n_frames": 100, "noise_free": True},
 }
 
 
-def _digest(r) -> str:
-    h = hashlib.sha256()
+def road_fingerprint(r) -> list[tuple]:
+    """The road drive's arrays (measurements and ground truth), fingerprinted."""
     s = r.sequence
-    for a in (s.timestamps, s.linear_velocity, s.angular_velocity, s.obs.frame_ptr, s.obs.track,
-              s.obs.z, s.calibration.cam_T_imu, r.poses, r.landmarks, r.true_velocities,
-              r.track_landmark, r.landmark_points):
-        a = np.ascontiguousarray(a)
-        h.update(str(a.dtype).encode())
-        h.update(str(a.shape).encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
+    return fingerprint((s.timestamps, s.linear_velocity, s.angular_velocity, s.obs.frame_ptr,
+                        s.obs.track, s.obs.z, s.calibration.cam_T_imu, r.poses, r.landmarks,
+                        r.true_velocities, r.track_landmark, r.landmark_points))
 
 
 def visits(seq) -> np.ndarray:
@@ -52,10 +45,10 @@ def visits(seq) -> np.ndarray:
     return np.bincount(t[new], minlength=seq.n_tracks)
 
 
-@pytest.mark.parametrize("case", sorted(ROAD_DIGESTS))
-def test_road_is_unchanged_to_the_byte(case):
-    settings, digest = ROAD_DIGESTS[case]
-    assert _digest(simulate(dataclasses.replace(DEFAULT_SIM, **settings))) == digest
+@pytest.mark.parametrize("case", sorted(ROAD_CASES))
+def test_road_is_unchanged(case):
+    got = road_fingerprint(simulate(dataclasses.replace(DEFAULT_SIM, **ROAD_CASES[case])))
+    assert_same_fingerprint(got, pinned(f"road/{case}"))
 
 
 def test_road_is_the_default_and_scenario_config_gives_each_ones_defaults():
@@ -127,7 +120,7 @@ def test_scenarios_are_seeded(scenario):
     a = simulate(scenario_config(scenario, n_frames=80, seed=4))
     b = simulate(scenario_config(scenario, n_frames=80, seed=4))
     c = simulate(scenario_config(scenario, n_frames=80, seed=5))
-    assert _digest(a) == _digest(b) != _digest(c)
+    assert road_fingerprint(a) == road_fingerprint(b) != road_fingerprint(c)
     free = simulate(scenario_config(scenario, n_frames=80, seed=4, noise_free=True))
     assert np.array_equal(free.poses, a.poses)  # the noise-free drive is the noisy one's truth
     assert np.array_equal(free.landmark_points, a.landmark_points)
