@@ -18,21 +18,18 @@ Drawn with matplotlib's object API on the Agg canvas, written atomically (as :mo
 
 from __future__ import annotations
 
-import io
 import math
 from pathlib import Path
 
 import matplotlib
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
-from vislam.eval.atomic import write_bytes
 from vislam.eval.compare import PLOT_FIGURES, Comparison, Row, Section
 from vislam.eval.compare_readings import ABSENT, NO_VALUE, num
-from vislam.eval.plots import COLOURS, DPI
+from vislam.eval.plots import COLOURS, save_figure
 
 FOLDER_COLOURS = ("black", "tab:blue", "tab:orange", "tab:purple", "tab:cyan", "tab:olive",
                   "tab:pink", "tab:brown")
@@ -273,13 +270,4 @@ def plot_comparison(path, comp: Comparison) -> Path:
                               markersize=3.5, label="one run's mean pose NEES"))
     fig.legend(handles=handles, loc="outside upper center", ncols=min(len(handles), 4),
                fontsize=8, frameon=False)
-    return _save_png(fig, path)
-
-
-def _save_png(fig: Figure, path) -> Path:
-    """The figure as a PNG at the benchmark's figures' resolution, written atomically."""
-    FigureCanvasAgg(fig)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
-    write_bytes(path, buf.getvalue())
-    return Path(path)
+    return save_figure(fig, path)

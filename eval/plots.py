@@ -143,9 +143,13 @@ def readable(x: float | None) -> str:
 
 
 def save_figure(fig: Figure, path: str | os.PathLike) -> Path:
+    """The figure as a PNG at DPI, written atomically. Every figure is laid out by matplotlib's
+    constrained layout, which keeps its labels and outside legends inside the canvas, so the
+    canvas is saved as it is: ``bbox_inches="tight"`` would draw the whole figure a second time
+    only to trim its margin."""
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=DPI)
     write_bytes(path, buf.getvalue())
     return Path(path)
 
