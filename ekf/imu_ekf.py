@@ -72,7 +72,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.linalg import solve_triangular
-from scipy.stats import chi2
+from vislam.ekf import chi_square as chi2
 
 from vislam.ekf import imu_landmarks as il
 from vislam.ekf import inverse_depth as idp

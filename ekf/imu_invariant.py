@@ -86,7 +86,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.linalg.lapack import dpotrf
-from scipy.stats import chi2
+from vislam.ekf import chi_square as chi2
 from vislam.ekf import imu_landmarks as iml
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.camera import triangulate_with_jacobian

@@ -71,7 +71,7 @@ from typing import Callable
 import numpy as np
 from scipy.linalg.blas import dtrsm
 from scipy.linalg.lapack import dpotrf
-from scipy.stats import chi2
+from vislam.ekf import chi_square as chi2
 
 from vislam.ekf import inverse_depth as idp
 from vislam.ekf.camera import dpi_dq, project, triangulate_unscented, triangulate_with_jacobian

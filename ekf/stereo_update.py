@@ -25,7 +25,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from vislam.ekf import chi_square as chi2
 
 from vislam.ekf.camera import dpi_dq, triangulate_unscented, triangulate_with_jacobian
 from vislam.ekf.geometry import hat, se3_inv

@@ -24,7 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from vislam.ekf import chi_square as chi2
 
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.errors import InputError

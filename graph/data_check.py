@@ -65,7 +65,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
+from vislam.ekf import chi_square as chi2_dist
 
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.conventions import estimate_cov_to_gtsam

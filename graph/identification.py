@@ -102,7 +102,7 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
+from vislam.ekf import chi_square as chi2
 
 from vislam.ekf.config import VELOCITY_PAIRINGS, FilterConfig
 from vislam.ekf.conventions import estimate_cov_to_gtsam

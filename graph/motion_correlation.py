@@ -62,7 +62,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 from scipy.optimize import nnls
-from scipy.stats import chi2
+from vislam.ekf import chi_square as chi2
 
 from vislam.graph.parameter_uncertainty import (MAX_LOG_SD, conservative_level, log_sigma_sd,
                                                  missing_fraction)
