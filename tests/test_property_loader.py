@@ -386,22 +386,39 @@ def check_drive_file(path, monocular: bool = False) -> None:
             assert n >= 1
 
 
-@settings(max_examples=examples(600))
+def loads_or_refuses(tmp_path, case, monocular: bool = False):
+    data, labels = case
+    path = tmp_path / "drive.npz"
+    path.write_bytes(data)
+    check_drive_file(path, monocular=monocular)
+
+
+# The fast tier draws a few hundred files of each layout; the regression tier sweeps more
+# (other examples: hypothesis derandomizes each test by its own name).
+@settings(max_examples=examples(200))
 @given(npz_file())
 def test_load_sequence_returns_a_valid_drive_or_input_error(tmp_path, case):
-    data, labels = case
-    path = tmp_path / "drive.npz"
-    path.write_bytes(data)
-    check_drive_file(path)
+    loads_or_refuses(tmp_path, case)
 
 
-@settings(max_examples=examples(400))
+@settings(max_examples=examples(150))
 @given(npz_file("sparse"))
 def test_sparse_file_loads_as_a_valid_drive_or_input_error(tmp_path, case):
-    data, labels = case
-    path = tmp_path / "drive.npz"
-    path.write_bytes(data)
-    check_drive_file(path, monocular=True)
+    loads_or_refuses(tmp_path, case, monocular=True)
+
+
+@pytest.mark.regression
+@settings(max_examples=examples(600))
+@given(npz_file())
+def test_load_sequence_sweep(tmp_path, case):
+    loads_or_refuses(tmp_path, case)
+
+
+@pytest.mark.regression
+@settings(max_examples=examples(400))
+@given(npz_file("sparse"))
+def test_sparse_file_sweep(tmp_path, case):
+    loads_or_refuses(tmp_path, case, monocular=True)
 
 
 # --------------------------------------------------------------------------- ground truth

@@ -519,18 +519,43 @@ def corrupted_drives(draw, max_frames: int = 40, max_corruptions: int = 3):
     return seq
 
 
-@settings(max_examples=_examples(60))  # 250 took ~50 s of the fast tier; a sweep: VISLAM_ROBUST_EXAMPLES
-@given(seq=corrupted_drives())
-def test_property_ekfs_on_corrupted_drives(seq):
+def ekfs_survive(seq):
     for name in EKFS:
         run_checked(name, seq)
 
 
-@settings(max_examples=_examples(20))  # 50 took ~35 s of the fast tier; a sweep: VISLAM_ROBUST_EXAMPLES
-@given(seq=corrupted_drives(max_frames=15, max_corruptions=2))
-def test_property_smoothers_on_corrupted_drives(seq):
+def smoothers_survive(seq):
     for name in SMOOTHERS:
         run_checked(name, seq)
+
+
+# The fast tier draws a few examples of every corruption; the regression tier sweeps more of
+# them (other examples: hypothesis derandomizes each test by its own name). A longer local
+# sweep: VISLAM_ROBUST_EXAMPLES.
+@settings(max_examples=_examples(25))
+@given(seq=corrupted_drives())
+def test_property_ekfs_on_corrupted_drives(seq):
+    ekfs_survive(seq)
+
+
+@settings(max_examples=_examples(8))
+@given(seq=corrupted_drives(max_frames=15, max_corruptions=2))
+def test_property_smoothers_on_corrupted_drives(seq):
+    smoothers_survive(seq)
+
+
+@pytest.mark.regression
+@settings(max_examples=_examples(60))
+@given(seq=corrupted_drives())
+def test_property_ekfs_on_corrupted_drives_sweep(seq):
+    ekfs_survive(seq)
+
+
+@pytest.mark.regression
+@settings(max_examples=_examples(20))
+@given(seq=corrupted_drives(max_frames=15, max_corruptions=2))
+def test_property_smoothers_on_corrupted_drives_sweep(seq):
+    smoothers_survive(seq)
 
 
 def test_landmarks_with_unusable_covariances_leave_the_map(caplog):
