@@ -7,12 +7,13 @@ the smoothers (graph/) use :func:`prepare_sequence` and :func:`finish_estimate`.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import time
 from typing import Callable
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from vislam.ekf.cleaning import clean_sequence
 from vislam.ekf.config import FilterConfig
@@ -81,6 +82,20 @@ def _report_dict(report) -> dict:
     return {"report": str(report)}
 
 
+@functools.lru_cache(maxsize=1)
+def _blas_controller() -> ThreadpoolController:
+    """The process's BLAS libraries (numpy's, and scipy's, imported first so that it is seen),
+    found once: ``threadpoolctl.threadpool_limits`` scans every loaded library at each call."""
+    import scipy.linalg  # noqa: F401
+
+    return ThreadpoolController()
+
+
+def blas_threads(n: int):
+    """Context manager limiting BLAS to ``n`` threads (threadpoolctl)."""
+    return _blas_controller().limit(limits=int(n), user_api="blas")
+
+
 @contextlib.contextmanager
 def blas_limits(config: FilterConfig):
     """Context manager pinning BLAS to ``config.blas_threads`` threads (DESIGN.md: 40x).
@@ -88,7 +103,7 @@ def blas_limits(config: FilterConfig):
     Inside it numpy's floating-point warnings (overflow, invalid) are off: on absurd but
     finite input they are expected, and the estimators check the results themselves
     (:mod:`ekf.numerics`) and reject or raise with one line instead."""
-    with threadpool_limits(limits=int(config.blas_threads), user_api="blas"), np.errstate(all="ignore"):
+    with blas_threads(config.blas_threads), np.errstate(all="ignore"):
         yield
 
 

@@ -53,10 +53,10 @@ import gtsam
 import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
-from threadpoolctl import threadpool_limits
 
 from vislam.ekf.conventions import gtsam_cov_to_estimate
 from vislam.ekf.errors import EstimationError
+from vislam.ekf.runner import blas_threads
 from vislam.graph.pose_conversions import L, X, estimation_error, key_name
 
 
@@ -451,7 +451,7 @@ def schur_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_f
     if not np.array_equal(reduced.tracks, np.sort(np.asarray(tracks, dtype=np.int64))):
         raise EstimationError("marginals: the graph's variables are not the expected poses and "
                               "landmarks")
-    with threadpool_limits(limits=1, user_api="blas"):
+    with blas_threads(1):
         pose_cov, landmark_cov = _schur_marginals(reduced, n_frames, n_tracks)
     if others is not None:
         return gtsam_cov_to_estimate(pose_cov), landmark_cov, reduced.others_covariance(others)
@@ -466,7 +466,7 @@ def pose_chain_covariances(reduced: LandmarksEliminated, n_frames: int,
     Takahashi recursion next to the diagonal; what EM needs for the expected motion residuals,
     :mod:`graph.identification`). ``with_log_det``: also ``log det H`` of the whole information
     matrix (the Laplace term of the likelihood)."""
-    with threadpool_limits(limits=1, user_api="blas"):
+    with blas_threads(1):
         pose_cov, _, pair_cov, log_det = _schur_marginals(
             reduced, n_frames, int(np.max(reduced.tracks, initial=-1)) + 1, pairs=True,
             landmarks=False)
@@ -480,7 +480,7 @@ def linearise(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_frames:
     ``doing`` names the step in GTSAM's errors. BLAS is pinned to one thread, as for the
     marginals (:func:`schur_marginals`)."""
     system = whitened_system(graph, values, doing)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with blas_threads(1):
         return system, information_solver(system.A, system.keys, n_frames)
 
 
