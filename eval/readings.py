@@ -290,7 +290,15 @@ def model_line(model: dict | None) -> str:
             f"{m.get('pixel_sigma', float('nan')):.3g} px{correlated}, pairing "
             f"{m.get('velocity_pairing')}, "
             f"{bias}{radial}")
-    test = (model.get("identification") or {}).get("extrinsic_test") or {}
+    ident = model.get("identification") or {}
+    window, n = ident.get("frames"), ident.get("n_frames")
+    if window and n and list(window) != [0, n]:
+        text += (f"; identified on frames {window[0]}-{window[1] - 1} of {n} (the drive's central "
+                 f"{window[1] - window[0]}: `vislam calibrate --max-frames 0` reads every frame)")
+    if ident.get("returning_tracks_split"):
+        text += (f"; {ident['returning_tracks_split']} returning tracks identified as new "
+                 "landmarks (the estimators keep each as one)")
+    test = ident.get("extrinsic_test") or {}
     if test:
         against = (f" against {test['threshold']:.3g}, {test.get('criterion', 'chi-square')}"
                    if "threshold" in test else "")

@@ -272,6 +272,13 @@ def test_summary_says_which_model_and_when_the_reference_is_not_a_fair_yardstick
     assert "overconfident" not in summary(6.1, identified)
     assert "underconfident" in summary(0.5, identified)
     assert "Model: the file's extrinsic and the settings as given." in summary(6.0, {"mode": "as-given"})
+    assert "identified on frames" not in text and "returning tracks" not in text
+    identified["identification"].update(frames=[1520, 3020], n_frames=4541, returning_tracks_split=357)
+    text = summary(6.1, identified)
+    assert "identified on frames 1520-3019 of 4541 (the drive's central 1500:" in text
+    assert "; 357 returning tracks identified as new landmarks (the estimators keep each as one)" in text
+    identified["identification"].update(frames=[0, 4541], returning_tracks_split=0)
+    assert "identified on frames" not in summary(6.1, identified)
 
 
 def test_summary_reads_the_results_in_words_and_drops_empty_columns():
