@@ -40,7 +40,7 @@ from vislam.graph.inertial_smoother import (  # noqa: E402
     InertialSmootherSettings,
     batch_solve,
     build_problem,
-    incremental_solve,
+    initial_solve,
     to_result,
 )
 
@@ -79,7 +79,7 @@ def main() -> None:
     clock = [(time.perf_counter(), time.process_time())]
     problem = build_problem(drive, settings)
     clock.append((time.perf_counter(), time.process_time()))
-    inc = incremental_solve(problem)
+    inc = initial_solve(problem)
     clock.append((time.perf_counter(), time.process_time()))
     sol = batch_solve(problem, inc)
     clock.append((time.perf_counter(), time.process_time()))

@@ -134,6 +134,16 @@ class InertialSmootherSettings:
     #: Camera frames whose factors go into one iSAM2 update (the frames in between are
     #: predicted by the preintegrated IMU from the last estimate).
     isam_frames_per_update: int = 10
+    #: The incremental pass that gives the batch its initial values starts a new landmark
+    #: variable for a track that returns after more than this many frames unseen
+    #: (:func:`incremental_solve`'s ``return_gap``; None: every return joins its landmark, as
+    #: the incremental-only estimate does).
+    init_return_gap: int | None = 20
+    #: ... and runs over every this-many-th frame only, the frames between predicted by the
+    #: IMU (:mod:`graph.inertial_keyframes`; 1: every frame).
+    init_keyframe_stride: int = 5
+    #: GTSAM's fill-reducing ordering of the batch solves' eliminations ("METIS" or "COLAMD").
+    batch_ordering: str = "METIS"
     compute_marginals: bool = True
 
 
@@ -180,6 +190,9 @@ class InertialProblem:
     pixel_sigma: float  # the sigma of pixel_noise
     #: the rectified pair of a stereo drive (None: one camera)
     stereo: gtsam.Cal3_S2Stereo | None = None
+    #: frames unseen after which the incremental pass takes a track's return as a new landmark
+    #: (None: never; :func:`incremental_solve`)
+    return_gap: int | None = None
 
     @property
     def n_frames(self) -> int:
@@ -206,8 +219,10 @@ class InertialProblem:
         return gtsam.PriorFactorVector(V(k), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(
             3, self.settings.rest_velocity_sigma))
 
-    def landmark_prior(self, j: int, point: np.ndarray) -> gtsam.PriorFactorPoint3:
-        return gtsam.PriorFactorPoint3(L(j), np.asarray(point, dtype=float), gtsam.noiseModel.Isotropic.Sigma(
+    def landmark_prior(self, j: int, point: np.ndarray, key: int | None = None) -> gtsam.PriorFactorPoint3:
+        """The weak prior on track ``j``'s landmark (variable ``key``, default ``L(j)``)."""
+        return gtsam.PriorFactorPoint3(L(j) if key is None else key, np.asarray(point, dtype=float),
+                                       gtsam.noiseModel.Isotropic.Sigma(
             3, self.settings.landmark_prior_sigma))
 
     def initial_pose(self) -> gtsam.Pose3:
@@ -217,18 +232,20 @@ class InertialProblem:
         """The IMU factor of interval ``[k - 1, k]``."""
         return gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self.pims[k - 1])
 
-    def projection(self, z, frame: int, track: int, robust: bool = True):
+    def projection(self, z, frame: int, track: int, robust: bool = True, key: int | None = None):
         """The factor of one observation: a monocular pixel ``[u, v]``, or a stereo one
         ``[uL, vL, uR, vR]`` as GTSAM's ``[uL, uR, v]`` with ``v`` the rows' mean (the velocity
-        drives' smoother does the same, :mod:`graph.factors`)."""
+        drives' smoother does the same, :mod:`graph.factors`); on the landmark variable ``key``
+        (default ``L(track)``)."""
         noise = self.robust_noise if robust else self.pixel_noise
+        point = L(track) if key is None else key
         if self.stereo is None:
             return gtsam.GenericProjectionFactorCal3_S2(
-                np.asarray(z, dtype=float), noise, X(frame), L(track), self.calibration,
+                np.asarray(z, dtype=float), noise, X(frame), point, self.calibration,
                 self.body_P_sensor)
         u_l, v_l, u_r, v_r = (float(x) for x in z)
         return gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(u_l, u_r, 0.5 * (v_l + v_r)), noise,
-                                           X(frame), L(track), self.stereo, self.body_P_sensor)
+                                           X(frame), point, self.stereo, self.body_P_sensor)
 
 
 def build_problem(drive: InertialDrive, settings: InertialSmootherSettings = InertialSmootherSettings()
@@ -327,8 +344,14 @@ def _triangulate(problem: InertialProblem, values: gtsam.Values, frames: np.ndar
 
 
 def incremental_solve(problem: InertialProblem) -> Solution:
-    """iSAM2, frame by frame (module docstring)."""
+    """iSAM2, frame by frame (module docstring). ``problem.return_gap`` (frames, None: never): a track
+    seen again after more than this many frames without an observation starts a new landmark
+    variable (``Symbol('m', i)``, not in the Solution's tracks, anchors or rows), as if it were
+    a new track: the pass is then visual-inertial odometry without the returns, whose Bayes
+    tree (and so its time and memory per frame) stays bounded when every landmark comes back
+    (a room flight); the batch solve closes the returns (:func:`batch_solve`)."""
     drive, s = problem.drive, problem.settings
+    return_gap = problem.return_gap
     start = time.perf_counter()
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(s.isam_relinearize_threshold)
@@ -349,6 +372,9 @@ def incremental_solve(problem: InertialProblem) -> Solution:
     estimate = _IsamLookup(isam)
     rest_frames = set(problem.rest_frames.tolist())
     anchors: dict[int, np.ndarray] = {}
+    current: dict[int, int] = {}  # track -> the landmark variable of its current visit
+    last_seen: dict[int, int] = {}
+    n_returns = 0
     estimate.new = values
     lookup = estimate
     for k in range(drive.n_frames):
@@ -365,11 +391,17 @@ def incremental_solve(problem: InertialProblem) -> Solution:
         a, b = int(obs.frame_ptr[k]), int(obs.frame_ptr[k + 1])
         for r in range(a, b):
             j = int(obs.track[r])
-            if j in in_graph:
-                if _reprojection(problem, lookup, k, j, obs.z[r]) > GATE_FACTOR * s.outlier_px:
+            key = current.get(j)
+            if key is not None and return_gap is not None and k - last_seen[j] > return_gap:
+                del current[j]
+                key = None
+            last_seen[j] = k
+            if key is not None:
+                if _reprojection(problem, lookup, k, key, obs.z[r]) > GATE_FACTOR * s.outlier_px:
                     continue
-                new.add(problem.projection(obs.z[r], k, j))
-                rows_used.append(r)
+                new.add(problem.projection(obs.z[r], k, j, key=key))
+                if key == L(j):
+                    rows_used.append(r)
                 continue
             pending.setdefault(j, []).append(r)
             if len(pending[j]) < s.min_track_frames:
@@ -380,13 +412,19 @@ def incremental_solve(problem: InertialProblem) -> Solution:
             if found is None or found[1].sum() < s.min_track_frames:
                 continue
             point, inliers = found
-            values.insert(L(j), point)
-            new.add(problem.landmark_prior(j, point))
-            anchors[j] = point
+            first = j not in in_graph
+            key = L(j) if first else gtsam.Symbol("m", n_returns).key()
+            n_returns += 0 if first else 1
+            values.insert(key, point)
+            new.add(problem.landmark_prior(j, point, key))
+            if first:
+                anchors[j] = point
             for rr, f in zip(rs[inliers].tolist(), frames[inliers].tolist()):
-                new.add(problem.projection(obs.z[rr], f, j))
-                rows_used.append(rr)
+                new.add(problem.projection(obs.z[rr], f, j, key=key))
+                if first:
+                    rows_used.append(rr)
             in_graph.add(j)
+            current[j] = key
             del pending[j]
         if (k + 1) % s.isam_frames_per_update and k + 1 < drive.n_frames:
             continue
@@ -442,8 +480,8 @@ class _IsamLookup:
         return self.isam.calculateEstimateConstantBias(key)
 
 
-def _reprojection(problem: InertialProblem, values: gtsam.Values, frame: int, track: int, z) -> float:
-    q = _camera_pose(values, frame, problem.body_P_sensor).transformTo(values.atPoint3(L(track)))
+def _reprojection(problem: InertialProblem, values: gtsam.Values, frame: int, key: int, z) -> float:
+    q = _camera_pose(values, frame, problem.body_P_sensor).transformTo(values.atPoint3(key))
     if q[2] <= 0:
         return np.inf
     return float(np.hypot(*(problem.calibration.uncalibrate(q[:2] / q[2]) - np.asarray(z)[:2])))
@@ -501,6 +539,7 @@ def _lm(problem: InertialProblem, graph, values, what: str) -> gtsam.Values:
     params.setMaxIterations(s.max_iterations)
     params.setRelativeErrorTol(s.relative_error_tol)
     params.setAbsoluteErrorTol(0.0)
+    params.setOrderingType(s.batch_ordering)
     try:
         return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
     except RuntimeError as exc:
@@ -513,7 +552,7 @@ def batch_solve(problem: InertialProblem, initial: Solution | None = None) -> So
     drive, s = problem.drive, problem.settings
     timing = {}
     if initial is None:
-        initial = incremental_solve(problem)
+        initial = initial_solve(problem)
         timing.update(initial.timing)
     start = time.perf_counter()
     values = _states_only(initial.values, problem.n_frames)
@@ -562,6 +601,18 @@ def batch_solve(problem: InertialProblem, initial: Solution | None = None) -> So
         values = _lm(problem, graph, values, "optimising under the identified pixel sigma")
     timing["batch_s"] = time.perf_counter() - start
     return Solution(values, kept_tracks, rows, anchors, graph, 0, timing, problem.pixel_sigma)
+
+
+def initial_solve(problem: InertialProblem) -> Solution:
+    """The batch solve's initial values: the incremental pass over keyframes
+    (:func:`graph.inertial_keyframes.keyframe_solve`) or, at stride 1, over every frame, with
+    returns after ``init_return_gap`` frames as new landmarks (settings)."""
+    from vislam.graph.inertial_keyframes import keyframe_solve
+
+    s = problem.settings
+    if s.init_keyframe_stride > 1:
+        return keyframe_solve(problem, s.init_keyframe_stride, s.init_return_gap)
+    return incremental_solve(dataclasses.replace(problem, return_gap=s.init_return_gap))
 
 
 def _states_only(values: gtsam.Values, n_frames: int) -> gtsam.Values:
@@ -650,15 +701,18 @@ def smooth(drive: InertialDrive, settings: InertialSmootherSettings = InertialSm
     problem = build_problem(drive, settings)
     build_s = time.perf_counter() - start
     factorization = settings.isam_factorization
+    def first_pass(problem):
+        return incremental_solve(problem) if incremental_only else initial_solve(problem)
+
     try:
-        inc = incremental_solve(problem)
+        inc = first_pass(problem)
     except EstimationError as exc:
         if factorization != "cholesky" or "indeterminate" not in str(exc):
             raise
         log.warning("%s; running the incremental pass again with QR factorisation", exc)
         factorization = f"qr (cholesky failed: {exc})"
         problem = dataclasses.replace(problem, settings=dataclasses.replace(settings, isam_factorization="qr"))
-        inc = incremental_solve(problem)
+        inc = first_pass(problem)
     if incremental_only:
         sol = dataclasses.replace(inc, graph=inc.graph)
         name = ESTIMATOR + "-isam2"

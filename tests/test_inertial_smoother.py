@@ -349,6 +349,33 @@ def test_one_pass_marginals_equal_gtsam_marginals():
         np.testing.assert_allclose(Pl[i], ref, rtol=1e-6, atol=1e-12)
 
 
+def test_one_pass_marginals_do_not_depend_on_the_border_pieces():
+    """The dense border computed in pieces of landmark columns and frames (to bound its memory
+    on long drives) gives the blocks of the border solved at once to 1e-9, and the landmarks'
+    blocks are gtsam.Marginals' (a 4 s simulated room drive: 162 landmarks)."""
+    import gtsam
+    from gtsam.symbol_shorthand import L
+
+    from vislam.eval.imu_sim import simulate_imu
+    from vislam.eval.imu_sim_config import ImuSimConfig
+    from vislam.graph.inertial_marginals import frame_marginals
+    from vislam.graph.inertial_smoother import _graph, batch_solve, incremental_solve
+
+    drive, _ = simulate_imu(ImuSimConfig(n_frames=81))
+    problem = build_problem(drive, InertialSmootherSettings(pixel_sigma=1.0))
+    sol = batch_solve(problem, incremental_solve(problem))
+    graph = _graph(problem, sol.rows, sol.anchors, robust=False)
+    whole = frame_marginals(graph, sol.values, drive.n_frames, sol.tracks, 10 ** 6, 10 ** 6)
+    pieces = frame_marginals(graph, sol.values, drive.n_frames, sol.tracks, 7, 3)
+    assert whole.Pl.shape[0] > 100
+    for a, b in ((whole.P, pieces.P), (whole.P_next, pieces.P_next), (whole.Pl, pieces.Pl)):
+        np.testing.assert_allclose(b, a, rtol=0, atol=1e-9 * np.abs(a).max())
+    m = gtsam.Marginals(graph, sol.values)
+    for i in range(0, sol.tracks.size, 40):
+        np.testing.assert_allclose(pieces.Pl[i], m.marginalCovariance(L(int(sol.tracks[i]))),
+                                   rtol=1e-6, atol=1e-12)
+
+
 def test_pixel_sigma_identified_from_the_residuals(synthetic_result):
     """The synthetic tracks carry 0.5 px noise per axis; the smoother's identified sigma (its
     default) finds it within the sampling spread of a few thousand residuals."""
