@@ -1,11 +1,11 @@
 """Per-stage time and peak memory of the raw-IMU smoother on simulated room flights of growing
 length (issue 37: a 5-minute flight in 60 s on one core).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/inertial_scaling.py 0.5 1 2 [NAME=VALUE ...]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/inertial_scaling.py 0.5 1 2 [--set NAME=VALUE ...]
 
 (``NAME=VALUE``: an :class:`graph.inertial_smoother.InertialSmootherSettings` field, e.g.
-``init_keyframe_stride=1 init_return_gap=None batch_ordering='"COLAMD"'`` for the pipeline as it
-was before 2026-12-02.)
+``--set init_keyframe_stride=1 init_return_gap=None batch_ordering='"COLAMD"'`` for the pipeline
+as it was before 2026-12-02.)
 
 Each length runs in a fresh process (so that the peak resident memory is its own) and prints one
 row: simulated minutes, frames, tracks, observations used, CPU seconds of build, incremental
@@ -79,16 +79,22 @@ def run_one(minutes: float, pairs: list[str]) -> str:
 
 
 def main() -> None:
-    args = [a for a in sys.argv[1:] if "=" not in a]
-    pairs = [a for a in sys.argv[1:] if "=" in a]
-    if len(args) > 1 and args[0] == "--one":
-        print(run_one(float(args[1]), pairs), flush=True)
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("minutes", nargs="+", type=float, help="simulated minutes of each flight")
+    parser.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
+                        help="InertialSmootherSettings fields (each value a Python literal)")
+    parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)  # a child's row
+    args = parser.parse_args()
+    if args.one:
+        print(run_one(args.minutes[0], args.set), flush=True)
         return
     print("| minutes | frames | tracks | observations | build s | incremental s | batch s | marginals s "
           "| total s | peak GB after each stage | ATE 4-dof m | pose NEES |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |", flush=True)
-    for m in args:
-        subprocess.run([sys.executable, __file__, "--one", m, *pairs], check=True)
+    for m in args.minutes:
+        subprocess.run([sys.executable, __file__, "--one", f"{m:g}", "--set", *args.set], check=True)
 
 
 if __name__ == "__main__":

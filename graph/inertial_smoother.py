@@ -33,9 +33,15 @@ the rest; the bias at ``(accel 0, gyro = rest mean)`` with ``accel_bias_sigma`` 
 frame's state is predicted from the last estimate by the preintegrated IMU, a track becomes a
 landmark once it has ``min_track_frames`` observations that triangulate, with all of them, and
 later observations are added as they come; estimates are looked up key by key (a full
-``calculateEstimate`` per frame cost more than the updates). :func:`batch_solve` starts from the
-incremental estimate, triangulates every track again from that trajectory (also those the
-incremental pass never took), solves with LM, drops observations whose reprojection error
+``calculateEstimate`` per frame cost more than the updates). That pass over every frame is the
+incremental estimate (``smooth(..., incremental_only=True)``). The batch's initial values come from the same
+pass over every ``init_keyframe_stride``-th frame (:mod:`graph.inertial_keyframes`: one IMU
+factor across each keyframe interval, the frames between predicted by the IMU), in which a
+track back after more than ``init_return_gap`` frames unseen starts a new landmark, so that
+its Bayes tree stays as narrow as odometry's on a flight whose landmarks keep coming back.
+:func:`batch_solve` starts from those values, triangulates every track again from that
+trajectory (also those the pass never took, and joining the returns), solves with LM (GTSAM's
+METIS ordering, ``batch_ordering``), drops observations whose reprojection error
 exceeds ``outlier_px`` (and tracks left with fewer than two), and solves again. **The pixel
 sigma** is then identified from the drive's own residuals unless given
 (:func:`identify_pixel_sigma`: ``sigma^2 = sum |r|^2 / (2N - 3M - 6T)`` over the observations
@@ -73,6 +79,7 @@ from vislam.graph.inertial_conventions import from_gtsam_bias, gtsam_bias_cov_to
 from vislam.graph.inertial_factors import preintegrate, preintegration_params, triangulate_track
 from vislam.graph.inertial_marginals import frame_marginals, imu_factor_statistics
 from vislam.graph.inertial_init import RestDetector, RestInterval, detect_rest, gravity_aligned_rotation
+from vislam.graph.inertial_keyframes import keyframe_drive, keyframes
 from vislam.graph.pose_conversions import estimation_error
 
 log = logging.getLogger(__name__)
@@ -603,12 +610,57 @@ def batch_solve(problem: InertialProblem, initial: Solution | None = None) -> So
     return Solution(values, kept_tracks, rows, anchors, graph, 0, timing, problem.pixel_sigma)
 
 
+def keyframe_solve(problem: InertialProblem, stride: int, return_gap: int | None) -> Solution:
+    """A :class:`Solution` for every frame of ``problem``'s drive from the incremental pass over
+    its keyframes (:mod:`graph.inertial_keyframes`): the keyframes' states and landmarks as that
+    pass left them, the other frames predicted by ``problem.pims`` from the
+    keyframe before. ``return_gap`` in frames of the full drive. Rows and tracks are those of
+    the keyframe pass (its graph is not returned: an initial value, not an estimate)."""
+    start = time.perf_counter()
+    drive = problem.drive
+    frames = keyframes(drive.n_frames, stride)
+    gap = None if return_gap is None else max(1, int(return_gap) // int(stride))
+    sub = dataclasses.replace(build_problem(keyframe_drive(drive, frames), problem.settings), return_gap=gap)
+    inc = incremental_solve(sub)
+    values = gtsam.Values()
+    for i, k in enumerate(frames.tolist()):
+        nav = gtsam.NavState(inc.values.atPose3(X(i)), inc.values.atVector(V(i)))
+        bias = inc.values.atConstantBias(B(i))
+        stop = int(frames[i + 1]) if i + 1 < frames.size else k + 1
+        for f in range(k, stop):
+            if f > k:
+                nav = problem.pims[f - 1].predict(nav, bias)
+            values.insert(X(f), nav.pose())
+            values.insert(V(f), nav.velocity())
+            values.insert(B(f), bias)
+    anchors = dict(inc.anchors)
+    for j in inc.tracks.tolist():
+        values.insert(L(j), inc.values.atPoint3(L(j)))
+    # The tracks the incremental pass over every frame would have taken (it triangulates a
+    # track from its first observations, then adds all later ones) but the keyframes missed
+    # (seen in fewer than min_track_frames keyframes): from all their observations.
+    obs, s = drive.obs, problem.settings
+    order = np.argsort(obs.track, kind="stable")
+    bounds = np.searchsorted(obs.track[order], np.arange(drive.n_tracks + 1))
+    all_frames = obs.frame_index
+    for j in range(drive.n_tracks):
+        rs = order[bounds[j]:bounds[j + 1]]
+        if j in anchors or rs.size < s.min_track_frames:
+            continue
+        found = _triangulate(problem, values, all_frames[rs], obs.z[rs])
+        if found is None or found[1].sum() < s.min_track_frames:
+            continue
+        anchors[j] = found[0]
+        values.insert(L(j), found[0])
+    tracks = np.array(sorted(anchors), dtype=np.int64)
+    return Solution(values, tracks, np.zeros(0, dtype=np.int64), anchors, gtsam.NonlinearFactorGraph(), 0,
+                    {"isam2_s": time.perf_counter() - start})
+
+
 def initial_solve(problem: InertialProblem) -> Solution:
     """The batch solve's initial values: the incremental pass over keyframes
-    (:func:`graph.inertial_keyframes.keyframe_solve`) or, at stride 1, over every frame, with
+    (:func:`keyframe_solve`) or, at stride 1, over every frame, with
     returns after ``init_return_gap`` frames as new landmarks (settings)."""
-    from vislam.graph.inertial_keyframes import keyframe_solve
-
     s = problem.settings
     if s.init_keyframe_stride > 1:
         return keyframe_solve(problem, s.init_keyframe_stride, s.init_return_gap)
