@@ -8,8 +8,8 @@
 target), with the same printout against its exact truth.
 
 The drive: the ASL folder's IMU and sensor.yaml noise with gtsam's eqvio monocular tracks (601
-frames at 20 Hz). Prints the time of each stage (build with preintegration, the incremental
-iSAM2 pass for the initial values, the batch LM solves with the pixel sigma identification,
+frames at 20 Hz). Prints the time of each stage (build with preintegration, the initial values:
+the incremental iSAM2 pass over keyframes, the batch LM solves with the pixel sigma identification,
 the marginals; CPU and wall seconds), the 4-dof (yaw and translation) aligned ATE of
 the batch and the incremental solve against the ground truth at the camera frames, the raw ATE
 in the smoother's world (:func:`graph.inertial_init.to_gravity_world` of the truth), the largest
@@ -91,7 +91,7 @@ def main() -> None:
     print(f"drive: {drive.n_frames} frames, {drive.n_tracks} tracks, rest {problem.rest.t_start:.2f}-"
           f"{problem.rest.t_end:.2f} s, IMU noise x {args.inflation:g}")
     for what, t in (("CPU", cpu), ("wall", wall)):
-        print(f"time (s, {what}, one BLAS thread): build {t[0]:.2f}  initial values (iSAM2) {t[1]:.2f}  "
+        print(f"time (s, {what}, one BLAS thread): build {t[0]:.2f}  initial values (iSAM2 over keyframes) {t[1]:.2f}  "
               f"batch LM {t[2]:.2f}  marginals {t[3]:.2f}  total {t.sum():.2f}")
     print(f"landmarks {result.info['n_landmarks']} of {result.info['n_tracks_multi']} multi-frame tracks "
           f"({result.info['n_tracks_not_triangulated']} left out), observations used "
