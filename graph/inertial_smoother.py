@@ -553,6 +553,14 @@ def _lm(problem: InertialProblem, graph, values, what: str) -> gtsam.Values:
         raise estimation_error(exc, what, estimator=ESTIMATOR) from None
 
 
+def _rows_by_track(obs, n_tracks: int):
+    """``rows(j)``: the observation rows of track ``j``, ascending (one stable sort of the
+    tracks for every track, where ``np.flatnonzero(obs.track == j)`` read every row per track)."""
+    order = np.argsort(obs.track, kind="stable")
+    bounds = np.searchsorted(obs.track[order], np.arange(n_tracks + 1))
+    return lambda j: order[bounds[j]:bounds[j + 1]]
+
+
 def batch_solve(problem: InertialProblem, initial: Solution | None = None) -> Solution:
     """Levenberg-Marquardt over the whole drive from ``initial`` (the incremental solve's
     estimate when None), with one round of outlier rejection (module docstring)."""
@@ -566,8 +574,9 @@ def batch_solve(problem: InertialProblem, initial: Solution | None = None) -> So
     obs = drive.obs
     rows, tracks, anchors = [], [], {}
     all_frames = obs.frame_index
+    by_track = _rows_by_track(obs, drive.n_tracks)
     for j in range(drive.n_tracks):
-        rs = np.flatnonzero(obs.track == j)
+        rs = by_track(j)
         if rs.size < 2:
             continue
         if j in initial.anchors:
@@ -640,11 +649,10 @@ def keyframe_solve(problem: InertialProblem, stride: int, return_gap: int | None
     # track from its first observations, then adds all later ones) but the keyframes missed
     # (seen in fewer than min_track_frames keyframes): from all their observations.
     obs, s = drive.obs, problem.settings
-    order = np.argsort(obs.track, kind="stable")
-    bounds = np.searchsorted(obs.track[order], np.arange(drive.n_tracks + 1))
+    by_track = _rows_by_track(obs, drive.n_tracks)
     all_frames = obs.frame_index
     for j in range(drive.n_tracks):
-        rs = order[bounds[j]:bounds[j + 1]]
+        rs = by_track(j)
         if j in anchors or rs.size < s.min_track_frames:
             continue
         found = _triangulate(problem, values, all_frames[rs], obs.z[rs])
