@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 
 #: Changes whenever the identification would give a different answer on the same input, to a
 #: value never used before (so that no old cache entry can match it).
-IDENTIFICATION_VERSION = "2026-11-28.36-central-frames"
+IDENTIFICATION_VERSION = "2026-12-02.34-drift-check"
 
 
 @dataclass
@@ -121,6 +121,8 @@ def fit_report(fit) -> dict:
         "returning_tracks_split": int(fit.returning_tracks_split),
         "frames": [int(f) for f in fit.frames],
         "n_frames": int(fit.n_frames),
+        "drift_test": dict(fit.drift_test),
+        "noise_widening": float(fit.noise_widening),
     }
 
 

@@ -298,6 +298,16 @@ def model_line(model: dict | None) -> str:
     if ident.get("returning_tracks_split"):
         text += (f"; {ident['returning_tracks_split']} returning tracks identified as new "
                  "landmarks (the estimators keep each as one)")
+    drift = ident.get("drift_test") or {}
+    if drift.get("widening", 1.0) > 1.0:
+        text += (f"; every noise level widened {drift['widening']:.2f}x: over stretches of "
+                 f"{drift['stretch_s']:g} s, dead reckoning and the smoother disagreed "
+                 f"{drift['widening']:.2f}x beyond what the identified model claimed (chi2/dof "
+                 f"{drift['ratio']:.2f} on {drift['dof']} dof): the model did not explain the drive")
+    elif drift:
+        text += (f"; drift check: dead reckoning and the smoother agree over stretches of "
+                 f"{drift['stretch_s']:g} s within what the model claims (chi2/dof "
+                 f"{drift['ratio']:.2f})")
     test = ident.get("extrinsic_test") or {}
     if test:
         against = (f" against {test['threshold']:.3g}, {test.get('criterion', 'chi-square')}"

@@ -267,18 +267,9 @@ def interval_residuals(solution, config: FilterConfig) -> tuple[np.ndarray, np.n
     covariance under the model ``W - C Sigma C^T`` (n, 6, 6) and ``W`` (6, 6), all in GTSAM's
     rotation-first order; ``solution`` a :class:`graph.smoother.SmootherSolution` solved with
     ``config`` (:func:`graph.identification.motion_residuals`, as EM's E-step)."""
-    from vislam.graph.factors import fix_bias
-    from vislam.graph.gyro_bias import corrected_deltas
     from vislam.graph.identification import motion_residuals
-    from vislam.graph.marginals import linearise, pose_chain_covariances
+    from vislam.graph.marginals import pose_chain_covariances
 
-    problem, values = solution.problem, solution.values
-    graph, deltas = problem.graph, solution.deltas
-    if solution.bias_model is not None:  # "joint": the marginals given the estimated bias
-        graph, values = fix_bias(problem, values, solution.deltas, solution.noise,
-                                 solution.bias_model)
-        deltas = corrected_deltas(solution.deltas, solution.bias_model.D,
-                                  np.asarray(solution.gyro_bias, dtype=float))
     T = solution.poses.shape[0]
     W = estimate_cov_to_gtsam(config.velocity_cov)  # what graph.factors.relative_motions uses
     n = max(T - 1, 0)
@@ -286,10 +277,9 @@ def interval_residuals(solution, config: FilterConfig) -> tuple[np.ndarray, np.n
     R = np.zeros((n, 6, 6))
     if n == 0:
         return w, R, W
-    if solution.bias_model is None:  # the solution's own graph: its linearisation, computed once
-        _, reduced = solution.linearised()
-    else:
-        _, reduced = linearise(graph, values, T, "linearising for the interval residuals")
+    from vislam.graph.drift_check import posterior_system
+
+    deltas, reduced = posterior_system(solution)
     pose_cov, pair_cov = pose_chain_covariances(reduced, T)
     w, cw, _ = motion_residuals(solution.poses, deltas, solution.twist, solution.tau,
                                 pose_cov, pair_cov)
@@ -321,20 +311,6 @@ def _interval_terms(w: np.ndarray, R: np.ndarray, W: np.ndarray, fraction: float
     return _IntervalTerms(np.c_[c_all, c_lin, c_ang], np.c_[d_all, d_lin, d_ang].astype(np.int64))
 
 
-def stretch_labels(times: np.ndarray, stretch_s: float) -> np.ndarray:
-    """Stretch index (0, 1, ...) of each interval from its start time ``times`` (n,) (s from
-    the first frame): consecutive ``stretch_s`` windows, empty ones skipped, a last stretch
-    shorter than ``stretch_s / 2`` joined to the one before."""
-    if times.size == 0:
-        return np.zeros(0, dtype=np.int64)
-    raw = np.floor((times - times[0]) / stretch_s).astype(np.int64)
-    labels = np.r_[0, np.cumsum(np.diff(raw) != 0)].astype(np.int64)
-    last = labels == labels[-1]
-    if labels[-1] > 0 and times[-1] - times[last][0] < 0.5 * stretch_s:
-        labels[last] = labels[-1] - 1
-    return labels
-
-
 def _threshold(dof: int, level: float, factor: float = 1.0) -> float:
     """The ``level`` quantile of a sum with ``dof`` degrees of freedom whose variance is
     ``factor`` times a chi-square's (Satterthwaite: ``factor * chi2(dof / factor)``)."""
@@ -356,6 +332,7 @@ def velocity_check(solution, config: FilterConfig, *, stretch_s: float = 10.0,
                          f"seconds, got {stretch_s!r}")
     if not (np.isfinite(level) and 0.0 < level < 1.0):
         raise InputError(f"velocity check: level must be between 0 and 1, got {level!r}")
+    from vislam.graph.drift_check import stretch_labels
     from vislam.graph.factors import unconstrained_intervals
 
     w, R, W = interval_residuals(solution, config)
@@ -400,4 +377,4 @@ def velocity_check(solution, config: FilterConfig, *, stretch_s: float = 10.0,
 
 
 __all__ = ["MIN_VARIANCE_FRACTION", "NOTE_BELOW", "PAIRING_VARIANCE_FACTOR", "StretchCheck",
-           "VelocityCheck", "interval_residuals", "stretch_labels", "velocity_check"]
+           "VelocityCheck", "interval_residuals", "velocity_check"]

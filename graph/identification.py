@@ -241,6 +241,11 @@ class ModelFit:
     n_frames: int = 0
     #: returns of tracks identified as new landmarks (module docstring; ekf.driver.carry_tracks)
     returning_tracks_split: int = 0
+    #: the drift check of the final model (graph.drift_check.DriftCheck.to_dict, its widening
+    #: and its report lines); empty when not run
+    drift_test: dict = field(default_factory=dict)
+    #: the factor every noise level of the model was widened by where the check failed
+    noise_widening: float = 1.0
     solution: object = None  # graph.smoother.SmootherSolution under the identified model
     config: FilterConfig | None = None  # the identified interval sigmas and pairing
 
@@ -259,10 +264,11 @@ class ModelFit:
             float(min(lv.log_sd, MAX_LOG_SD)) for lv in self.noise_levels)
         sigma = None if self.cam_T_imu_cov is None else tuple(
             float(x) for x in np.sqrt(np.diag(self.cam_T_imu_cov)))
+        c = float(self.noise_widening)
         return Model(
-            velocity_sigma=tuple(map(float, self.velocity_sigma)),
-            gyro_sigma=tuple(map(float, self.gyro_sigma)),
-            pixel_sigma=float(self.pixel_sigma),
+            velocity_sigma=tuple(c * float(x) for x in self.velocity_sigma),
+            gyro_sigma=tuple(c * float(x) for x in self.gyro_sigma),
+            pixel_sigma=c * float(self.pixel_sigma),
             velocity_pairing=self.pairing,
             cam_T_imu=np.array(self.cam_T_imu),
             gyro_bias=None if self.gyro_bias is None else tuple(map(float, self.gyro_bias)),
@@ -514,7 +520,8 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
                    pairings: tuple[str, ...] = VELOCITY_PAIRINGS,
                    max_iterations: int = 12, rtol: float = 0.01,
                    extrinsic: bool = True, radial: bool = True,
-                   time_offsets: bool = False, max_frames: int | None = MAX_FRAMES) -> ModelFit:
+                   time_offsets: bool = False, max_frames: int | None = MAX_FRAMES,
+                   drift: bool = True) -> ModelFit:
     """The model of ``seq`` by EM (module docstring): per-axis velocity and gyro sigma, pixel
     sigma, the velocity pairing with the largest likelihood, a gyro bias when a
     likelihood-ratio supports it (BIC), (``extrinsic``) the camera-IMU extrinsic with its
@@ -522,7 +529,9 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     passes BIC (:mod:`graph.radial`), and (``time_offsets``) the velocity and gyro streams'
     time offsets against the camera where the data support them (BIC, :mod:`graph.time_offset`).
     On a drive longer than ``max_frames``, its central ``max_frames`` frames only
-    (:func:`identification_frames`). ``config`` gives the starting point and every other filter setting; ``settings`` the
+    (:func:`identification_frames`). ``drift``: the drift check of the final model, which
+    widens every noise level where the drive's stretches disagree with it
+    (:mod:`graph.drift_check`). ``config`` gives the starting point and every other filter setting; ``settings`` the
     smoother's."""
     from vislam.graph.radial import radial_profile
     from vislam.graph.smoother import solve_smoother
@@ -538,6 +547,7 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     if frames != (0, n_frames):
         seq = seq.window(*frames)
     seq, n_split = carry_tracks(seq)  # returning tracks as the filters see them (docstring)
+    given_seq = seq  # before the model's radial term and offsets: what the estimators are given
     # Every round to the same tolerance: the bias and pairing decisions compare likelihoods
     # of nearby solves, and a looser rejection round moved them across the BIC threshold
     # (docs/findings.md).
@@ -702,7 +712,7 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
     dof_px = max(stats.n_pixel_dims - stats.pixel_leverage, 1.0)
     sample_std = np.array([lv.estimate * lv.log_sd for lv in levels])
     ext = em.extrinsic
-    return ModelFit(
+    fit = ModelFit(
         velocity_sigma=sample[3:],
         gyro_sigma=sample[:3],
         pixel_sigma=pixel_sigma,
@@ -751,6 +761,18 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
         solution=solution,
         config=cfg,
     )
+    # Does the model explain its drive? Dead reckoning against the smoother over stretches,
+    # under the model as the estimators will use it (graph.drift_check); where the two disagree
+    # beyond what it claims, every noise level is widened by one factor until they agree.
+    if drift:
+        from vislam.graph.drift_check import drift_widening
+
+        check, widening = drift_widening(given_seq, config, fit.to_model(""), settings,
+                                         warm_start=solution)
+        fit.drift_test = {**check.to_dict(), "widening": widening, "lines": check.lines()}
+        fit.noise_widening = widening
+    fit.seconds = time.perf_counter() - t0
+    return fit
 
 
 #: The white noise levels' names in GTSAM order (ekf.model.NOISE_LEVELS' first six, reordered).

@@ -14,9 +14,9 @@ from vislam.graph.data_check import (
     MIN_VARIANCE_FRACTION,
     _threshold,
     interval_residuals,
-    stretch_labels,
     velocity_check,
 )
+from vislam.graph.drift_check import stretch_labels
 from vislam.graph.settings import SmootherSettings
 from vislam.graph.smoother import solve_smoother
 

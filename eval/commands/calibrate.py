@@ -98,6 +98,12 @@ def run(args: argparse.Namespace) -> int:
 
         print("")
         print("\n".join(velocity_check(fit.solution, fit.config).lines()))
+    if fit.drift_test:  # issue 34's drift check, under the model as the estimators use it
+        print("")
+        print("\n".join(fit.drift_test["lines"]))
+        if fit.noise_widening > 1.0:
+            print(f"  so the model widens every noise level (the table's sigmas) "
+                  f"{fit.noise_widening:.2f}x: the least widening under which the stretches agree")
     if out is not None:
         write_text(out, model.to_toml())
         print(f"wrote {out}", file=sys.stderr)
