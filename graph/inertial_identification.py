@@ -46,6 +46,13 @@ to one figure.
    smoother's ``imu_noise_em_scale`` (``sum tr E_f / 15 (T - 1)``).
 
 until every figure moves by less than ``rtol`` (relative, on the density) or ``max_iterations``.
+Plain EM moves each figure by the share of its information the data hold, ``1 - m_i`` below:
+on a 5 s simulated flight 0.1 (gyro noise) to 0.03 (accelerometer), 4 % a step where the sheet
+is 3x off. So by default (``accelerate``) each step is a scoring step instead,
+``theta' = theta + I_obs^-1 dQ/dtheta`` (:func:`scoring_step`: ``dQ/dtheta`` at the E-step's
+``theta`` is the marginal likelihood's score by Fisher's identity, so its fixed points are EM's),
+each variance moved by at most 4x. A figure whose share ``m_i`` at the start is
+``UNDETERMINED_SHARE`` (0.99) or more is held at the sheet's and named (``undetermined``).
 
 **Uncertainty.** The complete-data Fisher information of ``theta`` is
 ``F_ij = 1/2 sum_f tr(W_f B~_fi W_f B~_fj)``; the posterior holds a share
