@@ -93,6 +93,34 @@ def imu_factor_statistics(graph: gtsam.NonlinearFactorGraph, marginals: FrameMar
     return chi2, lev
 
 
+def imu_factor_moments(graph: gtsam.NonlinearFactorGraph, marginals: FrameMarginals,
+                       first_imu_factor: int, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(E, L)`` (T - 1, 15, 15) of the IMU factors (as :func:`imu_factor_statistics`): the
+    expected outer product of each factor's whitened residual under the Laplace posterior,
+    ``E = b b^T + A_f Sigma_f A_f^T``, and its posterior part ``L = A_f Sigma_f A_f^T``, in the
+    factor's own whitened coordinates (``r_w = R r``, ``R`` its noise model's ``R()``; the
+    CombinedImuFactor's order: rotation, position, velocity, accelerometer bias, gyro bias).
+    ``trace(E) = chi2 + leverage``. EM's M-step for the IMU noise works on them
+    (:mod:`graph.inertial_identification`)."""
+    dims = np.array([graph.at(i).dim() for i in range(graph.size())], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(dims)])
+    E = np.empty((n_frames - 1, FRAME_DIM, FRAME_DIM))
+    L = np.empty_like(E)
+    A = marginals.A
+    for k in range(1, n_frames):
+        i = first_imu_factor + k - 1
+        r0, r1 = int(offsets[i]), int(offsets[i + 1])
+        if r1 - r0 != FRAME_DIM:
+            raise RuntimeError(f"marginals: factor {i} has {r1 - r0} rows, an IMU factor {FRAME_DIM}")
+        Af = A[r0:r1, FRAME_DIM * (k - 1):FRAME_DIM * (k + 1)].toarray()
+        Sf = np.block([[marginals.P[k - 1], marginals.P_next[k - 1]],
+                       [marginals.P_next[k - 1].T, marginals.P[k]]])
+        b = marginals.b[r0:r1]
+        L[k - 1] = Af @ Sf @ Af.T
+        E[k - 1] = np.outer(b, b) + L[k - 1]
+    return E, L
+
+
 #: Landmark columns of the border solved at a time, and frames per block of its products: the
 #: only dense array of the frames' size is ``Xs`` (then ``Y``, in place), 1.7 GB on a 5-minute
 #: room flight (6,001 frames, 796 landmarks), where ``C``, ``Xs``, ``Y`` and their transposed

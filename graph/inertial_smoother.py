@@ -77,7 +77,7 @@ from vislam.ekf.conventions import gtsam_cov_to_estimate
 from vislam.ekf.inertial import ACCEL_TURN_ON_BIAS_SIGMA, InertialDrive
 from vislam.graph.inertial_conventions import from_gtsam_bias, gtsam_bias_cov_to_vislam
 from vislam.graph.inertial_factors import preintegrate, preintegration_params, triangulate_track
-from vislam.graph.inertial_marginals import frame_marginals, imu_factor_statistics
+from vislam.graph.inertial_marginals import frame_marginals, imu_factor_moments, imu_factor_statistics
 from vislam.graph.inertial_init import RestDetector, RestInterval, detect_rest, gravity_aligned_rotation
 from vislam.graph.inertial_keyframes import keyframe_drive, keyframes
 from vislam.graph.pose_conversions import estimation_error
@@ -176,6 +176,11 @@ class InertialSmootherResult:
     states: InertialStates
     rest: RestInterval
     info: dict
+    #: Per IMU factor, the expected outer product of its whitened residual under the posterior
+    #: and its posterior part (:func:`graph.inertial_marginals.imu_factor_moments`); None
+    #: without marginals.
+    imu_moments: np.ndarray | None = None
+    imu_leverage: np.ndarray | None = None
 
 
 @dataclass
@@ -705,6 +710,7 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
         est.landmarks[j] = values.atPoint3(L(j))
     velocity_cov = np.full((T, 3, 3), np.nan)
     bias_cov = np.full((T, 6, 6), np.nan)
+    moments = leverage = None
     start = time.perf_counter()
     if s.compute_marginals:
         graph = _graph(problem, solution.rows, solution.anchors, robust=False)
@@ -712,6 +718,7 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
             m = frame_marginals(graph, values, T, solution.tracks)
             P, Pl = m.P, m.Pl
             chi2, lev = imu_factor_statistics(graph, m, problem.priors().size(), T)
+            moments, leverage = imu_factor_moments(graph, m, problem.priors().size(), T)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             raise estimation_error(exc, "computing marginals", estimator=ESTIMATOR) from None
         for k in range(T):  # one joint block per frame: [X (6), V (3), B (6)]
@@ -749,7 +756,7 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
     }
     est.info.update(info)
     return InertialSmootherResult(est, InertialStates(velocity, velocity_cov, bias, bias_cov),
-                                  problem.rest, info)
+                                  problem.rest, info, moments, leverage)
 
 
 def smooth(drive: InertialDrive, settings: InertialSmootherSettings = InertialSmootherSettings(),

@@ -40,15 +40,18 @@ import numpy as np
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from vislam.eval.commands.options import add_filter_arguments
 
-    parser.add_argument("file", metavar="FILE.npz", help="the drive (.npz data file)")
+    parser.add_argument("file", metavar="FILE.npz", help="the drive (.npz data file; a raw-IMU "
+                        "drive gets its IMU noise and pixel sigma identified: "
+                        "eval.commands.calibrate_imu)")
     parser.add_argument("--out", "-o", metavar="MODEL.toml",
-                        help="write the model here (a [model] table for --config)")
+                        help="write the model here (a [model] table for --config; for a raw-IMU "
+                             "drive: DRIVE.npz, the drive with the identified imu_noise)")
     parser.add_argument("--force", action="store_true",
                         help="replace --out even when it is a file vislam did not write")
     parser.add_argument("--pairings", metavar="LIST", default="current,next,mean",
                         help="velocity pairings to compare (default current,next,mean)")
     parser.add_argument("--max-iterations", type=int, default=12, metavar="N",
-                        help="EM steps per pairing at most (default 12)")
+                        help="EM steps per pairing (a raw-IMU drive: in all) at most (default 12)")
     parser.add_argument("--max-frames", type=int, default=None, metavar="N",
                         help="identify on the drive's central N frames at most (default 1500, "
                              "as vislam bench does; 0: every frame)")
@@ -61,6 +64,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from vislam.eval.inertial_files import is_inertial_file
+
+    if is_inertial_file(args.file):  # issue 39 item 2: the raw-IMU smoother's EM
+        from vislam.eval.commands.calibrate_imu import run_raw_imu
+
+        return run_raw_imu(args)
     from vislam.ekf.config import VELOCITY_PAIRINGS
     from vislam.ekf.errors import InputError
     from vislam.eval.atomic import write_text

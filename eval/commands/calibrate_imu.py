@@ -1,0 +1,98 @@
+"""`vislam calibrate FILE` on a raw-IMU drive: the IMU's noise densities and bias random walks
+and the pixel sigma by EM around the raw-IMU smoother (:mod:`graph.inertial_identification`).
+
+Prints the data sheet's figures (the file's ``imu_noise``) beside the identified ones, with each
+one's standard deviation and the ratio, the figures the drive cannot determine (kept at the
+sheet's), and the smoother's IMU and pixel statistics under the identified model.
+
+``--out DRIVE.npz`` writes the drive again with the identified figures as its ``imu_noise``: the
+raw-IMU estimators (the smoother, the EKFs, dead reckoning) read the IMU noise from the drive
+file, and the ``[model]`` table of ``--config`` holds velocity-drive settings only, so that is
+the route a raw-IMU model has. The pixel sigma is printed, not written (the drive file has no
+key for it; the smoother identifies it from the residuals on every run). The camera-IMU
+extrinsic is not identified or tested for raw-IMU drives (the module docstring of
+:mod:`graph.inertial_identification` says why); the report says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+#: The figures' printed names and units.
+LABELS = {
+    "gyro_noise_density": "gyro noise density (rad/s/sqrt(Hz))",
+    "gyro_random_walk": "gyro random walk (rad/s^2/sqrt(Hz))",
+    "accel_noise_density": "accel noise density (m/s^2/sqrt(Hz))",
+    "accel_random_walk": "accel random walk (m/s^3/sqrt(Hz))",
+    "pixel_sigma": "pixel sigma (px; the smoother's start)",
+}
+
+
+def check_out(out: Path, force: bool) -> None:
+    """``--out`` for a raw-IMU drive: a ``.npz`` in an existing folder, new unless ``--force``."""
+    from vislam.ekf.errors import InputError
+
+    if out.suffix != ".npz":
+        raise InputError(f"--out {out}: a raw-IMU drive's model is written as a drive file with the "
+                         "identified imu_noise; give a name ending in .npz")
+    if out.is_dir():
+        raise InputError(f"--out {out}: is a folder; give a file name such as drive-identified.npz")
+    if out.exists() and not force:
+        raise InputError(f"--out {out}: exists; choose another name, or --force to replace it")
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"--out {out}: folder {parent} does not exist")
+
+
+def run_raw_imu(args: argparse.Namespace) -> int:
+    """The command on a raw-IMU drive (module docstring)."""
+    from vislam.ekf.errors import InputError
+    from vislam.eval.inertial_files import load_inertial_drive, save_inertial_drive
+    from vislam.graph.inertial_identification import identify_imu_noise, with_noise
+
+    if not 1 <= args.max_iterations <= 1000:
+        raise InputError(f"--max-iterations must be between 1 and 1000, got {args.max_iterations}")
+    out = Path(args.out) if args.out else None
+    if out is not None:
+        check_out(out, args.force)
+    drive = load_inertial_drive(args.file)
+    fit = identify_imu_noise(drive, max_iterations=args.max_iterations)
+    print(report(drive.name, drive.n_frames, fit))
+    if out is not None:
+        identified = with_noise(drive, fit.noise)
+        save_inertial_drive(out, identified)
+        print(f"wrote {out} (the drive with the identified imu_noise)", file=sys.stderr)
+    return 0
+
+
+def report(name: str, frames: int, fit) -> str:
+    """The sheet's figures beside the identified ones (module docstring)."""
+    lines = [f"calibrate {name} ({frames} frames, raw IMU): EM around the raw-IMU smoother, "
+             f"{fit.iterations} steps ({'converged' if fit.converged else 'NOT converged'}), "
+             f"{fit.seconds:.1f} s", "",
+             "| quantity | data sheet (file) | identified | sigma | identified / sheet |",
+             "|---|---|---|---|---|"]
+    for key, sheet, value, sd, ratio in fit.rows():
+        sd_text = "undetermined" if not np.isfinite(sd) else f"{sd:.2g}"
+        lines.append(f"| {LABELS[key]} | {sheet:.4g} | {value:.4g} | {sd_text} | {ratio:.3g} |")
+    lines.append("")
+    if fit.undetermined:
+        lines.append(f"the drive cannot determine {', '.join(fit.undetermined)} (the posterior holds "
+                     "over 99 % of its expected residuals): the sheet's figure is kept")
+    share = ", ".join(f"{k} {m:.3f}" for k, m in zip(LABELS, fit.missing_share))
+    lines.append(f"share of each figure's expected squared residuals the posterior holds: {share}")
+    info = fit.result.info if fit.result is not None else {}
+    if "imu_noise_em_scale" in info:
+        lines.append(f"IMU factors under the identified model: mean chi2 {info['imu_chi2_mean']:.2f} + "
+                     f"leverage {info['imu_leverage_mean']:.2f} of 15")
+    for key, ratio in zip(LABELS, fit.ratio):
+        if key not in fit.undetermined and max(ratio, 1.0 / ratio) > 1.5:
+            lines.append(f"the sheet's {key} is {max(ratio, 1.0 / ratio):.1f}x off the data's: the "
+                         "raw-IMU estimators given it misweigh the IMU against vision")
+    lines.append("camera-IMU extrinsic: not checked for raw-IMU drives (the file's is used; "
+                 "graph.inertial_identification says why)")
+    return "\n".join(lines)
