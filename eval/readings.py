@@ -312,8 +312,11 @@ def model_line(model: dict | None) -> str:
     if test:
         against = (f" against {test['threshold']:.3g}, {test.get('criterion', 'chi-square')}"
                    if "threshold" in test else "")
+        oos = test.get("out_of_sample") or {}
+        held = ("" if not oos else f"; out-of-sample gain {oos['gain']:.3g} over "
+                f"{oos['folds']} held-out stretches")
         text += (f"; extrinsic: {test['decision']} (Wald statistic {test['statistic']:.3g} on "
-                 f"{test['dof']} dof{against})")
+                 f"{test['dof']} dof{against}{held})")
     arm = model.get("lever_arm") or {}
     if arm.get("ground_truth") is not None:
         model_p, truth_p, truth_s = (" ".join(f"{x:.2f}" for x in arm[k])

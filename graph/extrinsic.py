@@ -157,6 +157,33 @@ def extrinsic_step(solution, cam_T_imu: np.ndarray) -> ExtrinsicStep:
     return ExtrinsicStep(step=step, information=S, covariance=cov, determined=determined)
 
 
+def extrinsic_fold_gain(solution, cam_T_imu: np.ndarray, other: np.ndarray,
+                        stretch_s: float = 10.0):
+    """The identified extrinsic's out-of-sample gain over ``other`` (the file's), by
+    leave-one-stretch-out cross-validation of the profile likelihood at a smoother solved with
+    ``cam_T_imu`` (:func:`graph.out_of_sample.fold_gain`; folds: ``stretch_s`` stretches of the
+    drive, :func:`graph.drift_check.stretch_labels`). The components fitted are those the drive
+    determines (:func:`extrinsic_step`), under the weak prior ``PRIOR_SIGMA``."""
+    from vislam.graph.drift_check import stretch_labels
+    from vislam.graph.out_of_sample import fold_gain, profile_rows, row_frames
+
+    system = linear_system(solution, cam_T_imu)
+    A, b = system.A, system.b
+    A_t = np.zeros((A.shape[0], 6))
+    A_t[system.stereo] = system.A_t
+    _, posterior_of = solution.linearised()
+    A_p, b_p = profile_rows(A, b, A_t, posterior_of.solve)
+    prior = np.diag(1.0 / PRIOR_SIGMA ** 2)
+    cov = np.linalg.inv(A_p.T @ A_p + prior)
+    determined = np.sqrt(np.diag(cov)) <= UNDETERMINED_SIGMA
+    T = solution.poses.shape[0]
+    frames = row_frames(A, np.array([solution.linearised()[0].offsets[X(k)] for k in range(T)]))
+    times = np.asarray(solution.cleaned.timestamps, dtype=float)
+    labels = stretch_labels(times - times[0], stretch_s)
+    folds = np.where(frames >= 0, labels[np.clip(frames, 0, T - 1)], -1)
+    return fold_gain(A_p, b_p, folds, theta_between(cam_T_imu, other), determined, prior)
+
+
 def theta_between(cam_T_imu: np.ndarray, other: np.ndarray) -> np.ndarray:
     """The ``theta`` that moves ``cam_T_imu`` to ``other`` (:func:`perturb_cam_T_imu`)."""
     from vislam.ekf.geometry import so3_log
@@ -189,5 +216,5 @@ def lever_arm_covariance(cam_T_imu: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return G @ cov @ G.T
 
 
-__all__ = ["ExtrinsicStep", "ExtrinsicSystem", "linear_system", "extrinsic_step", "perturb_cam_T_imu", "theta_map", "lever_arm",
+__all__ = ["ExtrinsicStep", "ExtrinsicSystem", "linear_system", "extrinsic_step", "extrinsic_fold_gain", "perturb_cam_T_imu", "theta_map", "lever_arm",
            "lever_arm_covariance", "theta_between", "mahalanobis", "PRIOR_SIGMA", "UNDETERMINED_SIGMA"]

@@ -34,6 +34,13 @@ another needs clearly less noise (``PAIRING_MARGIN``). The Laplace approximation
 credits "mean" with its halved variance and ignores the correlation of its intervals, so it
 prefers "mean" on data made with any pairing.
 
+The file's extrinsic is replaced only where the data refute it twice: in sample (its Wald
+statistic under the identified one's covariance passes BIC) and out of sample (the extrinsic
+fitted without each 10 s stretch predicts that stretch better, in sum, than the file's:
+:func:`graph.extrinsic.extrinsic_fold_gain`, issue 34 item 2). A term that only fits what is
+particular to the data at hand (one stretch's slow error, a few tracks' correlated pixels)
+passes the first and fails the second.
+
 After EM, the pixel errors' correlation along tracks is measured on the final solution's
 residuals (:mod:`graph.track_correlation`): where a tracker's errors drift along a track, the
 model carries their correlation time tau and the estimators use the long-run pixel sigma
@@ -614,14 +621,22 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
                             em.extrinsic.determined)
         n_obs = max(em.stats.n_pixel_dims // 3, 2)  # uL, uR, v per stereo observation
         threshold = k * float(np.log(n_obs))  # BIC: k ln n
-        keep_file = d2 <= threshold
+        # Out of sample (issue 34 item 2): the extrinsic fitted without each 10 s stretch must
+        # predict that stretch better, in sum, than the file's does (graph.out_of_sample).
+        from vislam.graph.extrinsic import extrinsic_fold_gain
+
+        oos = extrinsic_fold_gain(em.solution, em.cam_T_imu, file_T)
+        keep_file = d2 <= threshold or not oos.improves
         extrinsic_test = {"statistic": d2, "dof": k, "threshold": threshold,
+                          "out_of_sample": oos.to_dict(),
                           "criterion": f"BIC ({k} ln n, n = {n_obs} stereo observations)",
                           "chi2_threshold": float(chi2.ppf(EXTRINSIC_TEST_LEVEL, k)) if k else 0.0,
                           "level": EXTRINSIC_TEST_LEVEL,
                           "p_value": float(chi2.sf(d2, k)) if k else 1.0,
-                          "decision": "file's kept (the data agree)" if keep_file
-                          else "identified (the data refute the file's)"}
+                          "decision": ("identified (the data refute the file's)" if not keep_file
+                                       else "file's kept (the data agree)" if d2 <= threshold
+                                       else "file's kept (refuted in sample, but the identified "
+                                            "one predicts held-out stretches no better)")}
         if keep_file:
             data_extrinsic = em.extrinsic
             em = em_noise(seq, em.config, with_bias, max_iterations=max_iterations, rtol=rtol,

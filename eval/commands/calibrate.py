@@ -161,6 +161,13 @@ def _verdict(fit) -> list[str]:
         lines.append(f"file extrinsic: Wald statistic {test['statistic']:.1f} on {test['dof']} dof "
                      f"against {test['threshold']:.1f} ({test.get('criterion', 'chi-square')}"
                      f"{chi2_part}): {test['decision']}")
+        oos = test.get("out_of_sample")
+        if oos:
+            lines.append(f"  out of sample: the identified extrinsic, fitted without each of "
+                         f"{oos['folds']} stretches, predicts it better than the file's by "
+                         f"{oos['gain']:.1f} in log-likelihood over the drive (in sample "
+                         f"{oos['in_sample']:.1f}; better on {oos['folds_better']} of "
+                         f"{oos['folds']} stretches)")
     if np.allclose(C, F):
         return lines
     for what, part, unit, scale in (("lever arm", slice(0, 3), "m", 1.0),

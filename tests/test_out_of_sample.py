@@ -1,0 +1,108 @@
+"""graph.out_of_sample: leave-one-stretch-out gain of a model term (issue 34 item 2).
+
+In a linear problem the profiled quadratic is exact, so fold_gain must equal brute-force refits
+without each fold; under a true null the gain is negative on average, with a real effect it
+approaches the in-sample gain; and the extrinsic's gain on simulated drives."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from vislam.graph.out_of_sample import fold_gain, profile_rows, row_frames
+
+
+def _problem(seed: int, theta_true, n_rows: int = 240, n_x: int = 12):
+    rng = np.random.default_rng(seed)
+    X = sp.random(n_rows, n_x, density=0.3, random_state=seed, format="csr") + sp.eye(n_rows, n_x)
+    Z = rng.normal(size=(n_rows, len(theta_true)))
+    y = X @ rng.normal(size=n_x) + Z @ np.asarray(theta_true) + rng.normal(size=n_rows)
+    folds = np.repeat(np.arange(6), n_rows // 6)
+    return sp.csr_matrix(X), Z, y, folds
+
+
+def _profiled(X, Z, y):
+    H = (X.T @ X).toarray()
+    A_p, b_p = profile_rows(X, y, Z, lambda B: np.linalg.solve(H, B))
+    theta_hat = np.linalg.lstsq(A_p, b_p, rcond=None)[0]
+    return A_p, b_p - A_p @ theta_hat, theta_hat  # linearised at the fitted term
+
+
+def test_fold_gain_is_the_brute_force_leave_one_fold_out_gain_in_a_linear_problem():
+    X, Z, y, folds = _problem(0, [0.3, -0.1])
+    A_p, b_p, theta_hat = _profiled(X, Z, y)
+    got = fold_gain(A_p, b_p, folds, -theta_hat, np.array([True, True]))
+    # brute force: x profiled on every row, theta refitted on the other folds, scored on the fold
+    Xd = X.toarray()
+    P = np.eye(len(y)) - Xd @ np.linalg.solve(Xd.T @ Xd, Xd.T)
+    Zp, yp = P @ Z, P @ y
+    total = 0.0
+    for f in range(6):
+        out, held = folds != f, folds == f
+        theta_f = np.linalg.lstsq(Zp[out], yp[out], rcond=None)[0]
+        loglik = lambda th: -0.5 * np.sum((yp[held] - Zp[held] @ th) ** 2)
+        total += loglik(theta_f) - loglik(np.zeros(2))
+    assert got.gain == pytest.approx(total, rel=1e-9, abs=1e-9)
+    assert got.n_folds == 6 and got.n_components == 2
+    assert got.in_sample == pytest.approx(0.5 * np.sum(yp ** 2) - 0.5 * np.sum((yp - Zp @ theta_hat) ** 2),
+                                          rel=1e-9)
+
+
+def test_a_component_not_fitted_stays_at_the_fitted_value():
+    X, Z, y, folds = _problem(1, [0.5, 0.0])
+    A_p, b_p, theta_hat = _profiled(X, Z, y)
+    only_first = fold_gain(A_p, b_p, folds, -theta_hat, np.array([True, False]))
+    both = fold_gain(A_p, b_p, folds, -theta_hat, np.array([True, True]))
+    assert only_first.n_components == 1 and only_first.gain != both.gain
+    none = fold_gain(A_p, b_p, folds, -theta_hat, np.array([False, False]))
+    assert none.gain == pytest.approx(-sum(  # each fold scores the full-data fit against the null
+        (A_p[folds == f].T @ b_p[folds == f]) @ (-theta_hat)
+        - 0.5 * theta_hat @ (A_p[folds == f].T @ A_p[folds == f]) @ theta_hat for f in range(6)))
+
+
+def test_no_effect_loses_out_of_sample_and_a_real_one_gains_what_it_gains_in_sample():
+    null_gains = []
+    for seed in range(40):
+        X, Z, y, folds = _problem(seed, [0.0, 0.0])
+        A_p, b_p, theta_hat = _profiled(X, Z, y)
+        null_gains.append(fold_gain(A_p, b_p, folds, -theta_hat, np.array([True, True])).gain)
+    null_gains = np.array(null_gains)
+    assert null_gains.mean() < -0.5  # about -p/2 plus the folds' share: a fit without a fold pays
+    assert np.mean(null_gains > 0) < 0.3
+    X, Z, y, folds = _problem(7, [0.8, -0.6])
+    A_p, b_p, theta_hat = _profiled(X, Z, y)
+    real = fold_gain(A_p, b_p, folds, -theta_hat, np.array([True, True]))
+    assert real.improves and real.gain > 0.9 * real.in_sample - 3.0
+    assert real.to_dict()["folds_better"] >= 5
+
+
+def test_row_frames_are_the_earliest_pose_a_row_touches():
+    # columns: landmark (3), pose 0 (6), pose 1 (6)
+    A = sp.lil_matrix((4, 15))
+    A[0, 0] = 1.0  # landmark only
+    A[1, 3] = 1.0  # pose 0
+    A[2, 10] = 1.0  # pose 1
+    A[3, 1], A[3, 12] = 1.0, 1.0  # landmark and pose 1
+    np.testing.assert_array_equal(row_frames(A, np.array([3, 9])), [-1, 0, 1, 1])
+
+
+@pytest.mark.slow
+def test_a_wrong_file_extrinsic_gains_out_of_sample_and_the_true_one_does_not_enter():
+    from vislam.ekf.config import FilterConfig
+    from vislam.eval.simulate import SimConfig, simulate
+    from vislam.graph.identification import identify_model
+    from vislam.graph.settings import SmootherSettings
+
+    settings = SmootherSettings()
+    wrong = simulate(SimConfig(seed=2, n_frames=250, velocity_sigma=0.1, gyro_sigma=0.01,
+                               file_extrinsic_fault="kitti"))
+    fit = identify_model(wrong.sequence, FilterConfig(), settings, pairings=("mean",),
+                         radial=False, drift=False)
+    oos = fit.extrinsic_test["out_of_sample"]
+    assert fit.extrinsic_test["decision"].startswith("identified"), fit.extrinsic_test
+    assert oos["gain"] > 10.0 and oos["folds"] == 2
+    right = simulate(SimConfig(seed=2, n_frames=250, velocity_sigma=0.1, gyro_sigma=0.01))
+    fit = identify_model(right.sequence, FilterConfig(), settings, pairings=("mean",),
+                         radial=False, drift=False)
+    assert fit.extrinsic_test["decision"].startswith("file's kept"), fit.extrinsic_test
