@@ -210,3 +210,57 @@ def estimate_bias(poses: np.ndarray, deltas: np.ndarray, D: np.ndarray, covs: np
             if np.max(np.abs(step)) < 1e-9:
                 break
     return b
+
+def motion_bias_jacobian(solution) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, A_b)``: the whitened Jacobian (6 (T-1), 3) of a solved smoother's motion
+    factors on a change ``db`` of the gyro bias removed from its motions, and the factors' rows
+    in GTSAM's linearisation (:meth:`graph.smoother.SmootherSolution.linearised`; the motion
+    factors follow the pose prior, graph.factors). At the solution's bias (``db = 0``) the module
+    docstring's ``de/db = J_r^-1(e) Ad(R^-1) D_k``, ``R = Exp(e)``; its whitening is read off the
+    linearisation's own block on ``x_k+1`` (``L J_r^-1(e)``), so
+
+        ``A_b = (L J_r^-1(e)) Ad(Exp(-e)) D_k``.
+
+    For a solution without a bias variable (``gyro_bias`` "alternate" or "off")."""
+    from vislam.graph.pose_conversions import X
+
+    system, _ = solution.linearised()
+    T = solution.poses.shape[0]
+    n = T - 1
+    D = bias_jacobians(solution.twist[:n], solution.tau[:n])
+    start = int(solution.problem.graph.at(0).dim())
+    rows = np.arange(start, start + 6 * n)
+    A = system.A.tocsr()
+    A_b = np.zeros((6 * n, 3))
+    for k in range(n):
+        r0 = start + 6 * k
+        c = system.offsets[X(k + 1)]
+        block = A[r0:r0 + 6, c:c + 6].toarray()
+        rel = to_pose3(solution.poses[k]).between(to_pose3(solution.poses[k + 1]))
+        e = gtsam.Pose3.Logmap(to_pose3(solution.deltas[k]).between(rel))
+        A_b[6 * k:6 * k + 6] = block @ gtsam.Pose3.Expmap(-e).AdjointMap() @ D[k]
+    return rows, A_b
+
+
+def bias_fold_gain(solution, stretch_s: float = 10.0):
+    """The gyro bias's out-of-sample gain over none (:func:`graph.out_of_sample.fold_gain`,
+    folds of ``stretch_s`` seconds) at a smoother solved with the bias removed
+    (``solution.gyro_bias``, "alternate"): the bias fitted without each stretch against the
+    null ``b = 0``, i.e. ``db = -b``."""
+    from vislam.graph.drift_check import stretch_labels
+    from vislam.graph.out_of_sample import fold_gain, profile_rows, row_frames
+    from vislam.graph.pose_conversions import X
+
+    system, posterior_of = solution.linearised()
+    rows, A_b = motion_bias_jacobian(solution)
+    A_t = np.zeros((system.A.shape[0], 3))
+    A_t[rows] = A_b
+    A_p, b_p = profile_rows(system.A, system.b, A_t, posterior_of.solve)
+    T = solution.poses.shape[0]
+    frames = row_frames(system.A, np.array([system.offsets[X(k)] for k in range(T)]))
+    times = np.asarray(solution.cleaned.timestamps, dtype=float)
+    labels = stretch_labels(times - times[0], stretch_s)
+    folds = np.where(frames >= 0, labels[np.clip(frames, 0, T - 1)], -1)
+    bias = np.zeros(3) if solution.gyro_bias is None else np.asarray(solution.gyro_bias, dtype=float)
+    return fold_gain(A_p, b_p, folds, -bias, np.ones(3, dtype=bool))
+

@@ -134,3 +134,47 @@ def test_joint_bias_lm_on_python_values_reaches_gtsams_minimum(damping):
     start = build_graph(sol.poses, sol.landmarks, sol.problem.rows, sol.deltas, sol.noise, bias=model)
     ours, theirs = assert_lm_reaches_gtsams_minimum(start, settings, 40)
     np.testing.assert_allclose(ours.atPoint3(BIAS_KEY), theirs.atPoint3(BIAS_KEY), atol=1e-7)
+
+
+def test_motion_bias_jacobian_matches_finite_differences_of_the_whitened_motion_errors():
+    """graph.gyro_bias.motion_bias_jacobian (the out-of-sample test's bias columns, issue 34)
+    against central differences of the whitened between-factor errors with the bias moved."""
+    from types import SimpleNamespace
+
+    from vislam.graph.gyro_bias import bias_jacobians, corrected_deltas, motion_bias_jacobian
+    from vislam.graph.marginals import linearise
+    from vislam.graph.pose_conversions import X
+
+    rng = np.random.default_rng(5)
+    T = 6
+    twist = rng.normal(0.0, [3.0, 0.3, 0.1, 0.05, 0.05, 0.3], size=(T - 1, 6))  # translation first
+    tau = np.full(T - 1, 0.1)
+    sigmas = np.array([0.002, 0.003, 0.002, 0.05, 0.02, 0.03])  # GTSAM order
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+    poses, deltas = [np.eye(4)], []
+    for k in range(T - 1):
+        xi = np.r_[twist[k, 3:], twist[k, :3]] * tau[k]
+        delta = gtsam.Pose3.Expmap(xi)
+        deltas.append(delta.matrix())
+        graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), delta, gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
+        noisy = gtsam.Pose3(poses[-1]).compose(delta).compose(gtsam.Pose3.Expmap(rng.normal(0, 0.01, 6)))
+        poses.append(noisy.matrix())
+    for k, P in enumerate(poses):
+        values.insert(X(k), gtsam.Pose3(P))
+    poses, deltas = np.stack(poses), np.stack(deltas)
+    lin = linearise(graph, values, T, "test")
+    solution = SimpleNamespace(poses=poses, deltas=deltas, twist=twist, tau=tau,
+                               problem=SimpleNamespace(graph=graph), linearised=lambda: lin)
+    rows, A_b = motion_bias_jacobian(solution)
+    np.testing.assert_array_equal(rows, np.arange(6, 6 * T))
+    D = bias_jacobians(twist, tau)
+
+    def whitened(db):
+        moved = corrected_deltas(deltas, D, db)
+        return np.concatenate([gtsam.Pose3.Logmap(gtsam.Pose3(moved[k]).between(
+            gtsam.Pose3(poses[k]).between(gtsam.Pose3(poses[k + 1])))) / sigmas for k in range(T - 1)])
+
+    h = 1e-6
+    numeric = np.column_stack([(whitened(h * e) - whitened(-h * e)) / (2 * h) for e in np.eye(3)])
+    np.testing.assert_allclose(A_b, numeric, rtol=1e-5, atol=1e-6)

@@ -279,6 +279,12 @@ def report(name: str, frames: int, fit, config) -> str:
     lines.append(f"gyro bias: likelihood ratio {t['statistic']:.1f} against {t['threshold']:.2f} "
                  f"(BIC, 3 ln n; chi-square 3 dof {t['level']:.0%}: {t['chi2_threshold']:.2f}): "
                  f"{t['decision']}")
+    held = t.get("out_of_sample")
+    if held:
+        lines.append(f"  out of sample: the bias, fitted without each of {held['folds']} "
+                     f"stretches, predicts it better than none by {held['gain']:.1f} in "
+                     f"log-likelihood over the drive (in sample {held['in_sample']:.1f}; better on "
+                     f"{held['folds_better']} of {held['folds']} stretches)")
     o = fit.time_offset_test
     if not o:
         lines.append("time offsets of the streams against the camera: not estimated "
