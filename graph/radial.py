@@ -132,6 +132,63 @@ def _profile_minimum(seq: Sequence, config: FilterConfig, settings: SmootherSett
     return float(estimate), float(1.0 / np.sqrt(2.0 * curvature)), points
 
 
+#: Step of the central difference of the undistorted pixels in k1 (they are smooth in k1).
+K1_DIFFERENCE = 1e-6
+
+
+def radial_jacobian(solution, k1: float) -> np.ndarray:
+    """The whitened Jacobian (3 N, 1) of a solved smoother's stereo rows ``[uL, uR, v]`` on a
+    change of the radial term ``k1`` removed from the pixels (the solution solved with ``k1``
+    removed). The measured pinhole pixels are ``undistort(z_lens, k1)``, ``z_lens =
+    distort(z, k1)``; GTSAM's error is predicted minus measured, so its derivative is minus the
+    measured pixels' (a central difference of :func:`ekf.camera.undistort_pixels`), whitened as
+    the linearisation whitens each row: ``sqrt(w) / sigma_c``, ``sigma_c`` the stereo noise's
+    ``[sigma, sigma, sigma / sqrt(2)]`` and ``w`` the robust kernel's weight, read off the
+    linearised right-hand side of the row against its error."""
+    from vislam.ekf.camera import undistort_pixels
+    from vislam.graph.extrinsic import linear_system
+    from vislam.graph.factors import stereo_residuals
+
+    rows = solution.problem.rows
+    K = np.asarray(solution.calibration.K, dtype=float)
+    z_lens = distort_pixels(rows.z, K, k1)
+    h = K1_DIFFERENCE
+    dz = (undistort_pixels(z_lens, K, k1 + h) - undistort_pixels(z_lens, K, k1 - h)) / (2.0 * h)
+    d_measured = np.stack([dz[:, 0], dz[:, 2], 0.5 * (dz[:, 1] + dz[:, 3])], axis=1)
+    ratio = np.array([1.0, 1.0, np.sqrt(2.0)])  # 1 / sigma_c in units of 1 / sigma
+    r, _ = stereo_residuals(solution.poses, solution.landmarks, solution.calibration, rows)
+    e = -r * ratio  # GTSAM's error (predicted - measured) times sigma / sigma_c
+    system, _ = solution.linearised()
+    stereo = linear_system(solution, solution.calibration.cam_T_imu).stereo
+    b = system.b[stereo].reshape(-1, 3)
+    ee = np.sum(e * e, axis=1)
+    scale = np.where(ee > 1e-18, -np.sum(b * e, axis=1) / np.where(ee > 1e-18, ee, 1.0), np.nan)
+    scale = np.where(np.isfinite(scale), scale, np.nanmedian(scale) if np.isfinite(scale).any() else 0.0)
+    return (-(scale[:, None] * ratio) * d_measured).reshape(-1, 1)
+
+
+def radial_fold_gain(solution, k1: float, stretch_s: float = 10.0):
+    """The radial term's out-of-sample gain over none (:func:`graph.out_of_sample.fold_gain`,
+    folds of ``stretch_s`` seconds) at a smoother solved with ``k1`` removed from its pixels:
+    the term fitted without each stretch against the null ``k1 = 0`` (a change of ``-k1``)."""
+    from vislam.graph.drift_check import stretch_labels
+    from vislam.graph.extrinsic import linear_system
+    from vislam.graph.out_of_sample import fold_gain, profile_rows, row_frames
+    from vislam.graph.pose_conversions import X
+
+    system, posterior_of = solution.linearised()
+    stereo = linear_system(solution, solution.calibration.cam_T_imu).stereo
+    A_t = np.zeros((system.A.shape[0], 1))
+    A_t[stereo] = radial_jacobian(solution, k1)
+    A_p, b_p = profile_rows(system.A, system.b, A_t, posterior_of.solve)
+    T = solution.poses.shape[0]
+    frames = row_frames(system.A, np.array([system.offsets[X(k)] for k in range(T)]))
+    times = np.asarray(solution.cleaned.timestamps, dtype=float)
+    labels = stretch_labels(times - times[0], stretch_s)
+    folds = np.where(frames >= 0, labels[np.clip(frames, 0, T - 1)], -1)
+    return fold_gain(A_p, b_p, folds, np.array([-float(k1)]), np.ones(1, dtype=bool))
+
+
 def radial_profile(seq: Sequence, config: FilterConfig, settings: SmootherSettings, solution,
                    step: float = RADIAL_STEP) -> RadialFit:
     """The radial term of ``seq``'s pixels (module docstring) at the model of ``config``
@@ -158,15 +215,25 @@ def radial_profile(seq: Sequence, config: FilterConfig, settings: SmootherSettin
     std = std * float(np.sqrt(2.0))  # the replicate's own scatter enters the correction
     statistic = (k1 / std) ** 2  # Wald, against none
     keep = statistic > threshold
-    # the solution under the term, where EM goes on from (only when it is kept)
-    sol = profile_point(seq, config, settings, k1, solution)[1] if keep else None
+    # the solution under the term, where EM goes on from (only when it is kept); the term must
+    # also predict held-out stretches better than none (issue 34 item 2, graph.out_of_sample)
+    sol = held_out = None
+    if keep:
+        sol = profile_point(seq, config, settings, k1, solution)[1]
+        held_out = radial_fold_gain(sol, k1)
+        keep = held_out.improves
+        if not keep:
+            sol = None
     log.info("radial term: k1 %.5f +- %.5f (profile %.5f, bootstrap bias %.5f), Wald %.1f "
              "against BIC %.1f: %s", k1, std, estimate, bias, statistic, threshold,
              "kept" if keep else "none")
     return RadialFit(
         k1=k1 if keep else None, estimate=k1, std=std,
         test={"statistic": statistic, "threshold": threshold, "criterion": criterion,
-              "decision": "radial term" if keep else "none (the data support none)",
+              "decision": ("radial term" if keep else "none (the data support none)"
+                           if held_out is None else "none (passes BIC in sample, but fitted "
+                           "without a stretch it predicts that stretch no better)"),
+              "out_of_sample": None if held_out is None else held_out.to_dict(),
               "profile_minimum": estimate, "bootstrap_bias": bias,
               "profile": {f"{k:.6g}": v for k, (v, _) in sorted(points.items())}},
         solution=sol)
