@@ -332,7 +332,7 @@ def velocity_check(solution, config: FilterConfig, *, stretch_s: float = 10.0,
                          f"seconds, got {stretch_s!r}")
     if not (np.isfinite(level) and 0.0 < level < 1.0):
         raise InputError(f"velocity check: level must be between 0 and 1, got {level!r}")
-    from vislam.graph.drift_check import stretch_labels
+    from vislam.graph.stretches import stretch_labels
     from vislam.graph.factors import unconstrained_intervals
 
     w, R, W = interval_residuals(solution, config)

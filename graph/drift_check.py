@@ -27,7 +27,7 @@ test cannot say which of the two is wrong; it says that the model does not expla
 Directions where vision adds almost nothing to dead reckoning (``V`` below
 :data:`MIN_INFORMATION_FRACTION` of ``P_D`` in the eigenbasis of ``P_D^-1/2 V P_D^-1/2``) carry
 no evidence and are left out, as in :mod:`graph.data_check`; a stretch without vision tests
-nothing. The stretches are the velocity check's (:func:`stretch_labels`),
+nothing. The stretches are the velocity check's (:func:`graph.stretches.stretch_labels`),
 each tested at ``level``; the drive as a whole by the sum of the stretches' statistics (they
 do not overlap; they share the posterior, a small effect) against ``chi2.ppf(level, dof)``.
 
@@ -209,20 +209,6 @@ def posterior_system(solution):
     return deltas, reduced
 
 
-def stretch_labels(times: np.ndarray, stretch_s: float) -> np.ndarray:
-    """Stretch index (0, 1, ...) of each interval from its start time ``times`` (n,) (s from
-    the first frame): consecutive ``stretch_s`` windows, empty ones skipped, a last stretch
-    shorter than ``stretch_s / 2`` joined to the one before."""
-    if times.size == 0:
-        return np.zeros(0, dtype=np.int64)
-    raw = np.floor((times - times[0]) / stretch_s).astype(np.int64)
-    labels = np.r_[0, np.cumsum(np.diff(raw) != 0)].astype(np.int64)
-    last = labels == labels[-1]
-    if labels[-1] > 0 and times[-1] - times[last][0] < 0.5 * stretch_s:
-        labels[last] = labels[-1] - 1
-    return labels
-
-
 def joint_pose_marginals(reduced, n_frames: int, pairs: list[tuple[int, int]]) -> list[np.ndarray]:
     """The joint marginal (12, 12) of each pair of poses, from the reduced pose system."""
     if not pairs:
@@ -254,6 +240,7 @@ def drift_check(solution, config: FilterConfig, *, stretch_s: float = STRETCH_S,
     if not (np.isfinite(level) and 0.0 < level < 1.0):
         raise InputError(f"drift check: level must be between 0 and 1, got {level!r}")
     from vislam.graph.pose_conversions import interval_jacobians
+    from vislam.graph.stretches import stretch_labels
 
     deltas, reduced = posterior_system(solution)
     poses = solution.poses
@@ -311,4 +298,4 @@ def drift_widening(seq, config: FilterConfig, model, settings, *, warm_start=Non
 
 __all__ = ["DriftCheck", "LEVEL", "MIN_INFORMATION_FRACTION", "STRETCH_S", "StretchDrift",
            "dead_reckoning_relative", "drift_check", "drift_widening", "hausman_statistic", "joint_pose_marginals",
-           "posterior_system", "smoother_relative", "stretch_labels"]
+           "posterior_system", "smoother_relative"]

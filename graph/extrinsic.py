@@ -162,10 +162,10 @@ def extrinsic_fold_gain(solution, cam_T_imu: np.ndarray, other: np.ndarray,
     """The identified extrinsic's out-of-sample gain over ``other`` (the file's), by
     leave-one-stretch-out cross-validation of the profile likelihood at a smoother solved with
     ``cam_T_imu`` (:func:`graph.out_of_sample.fold_gain`; folds: ``stretch_s`` stretches of the
-    drive, :func:`graph.drift_check.stretch_labels`). The components fitted are those the drive
+    drive, :func:`graph.stretches.stretch_labels`). The components fitted are those the drive
     determines (:func:`extrinsic_step`), under the weak prior ``PRIOR_SIGMA``."""
-    from vislam.graph.drift_check import stretch_labels
-    from vislam.graph.out_of_sample import fold_gain, profile_rows, row_frames
+    from vislam.graph.out_of_sample import fold_gain, profile_rows
+    from vislam.graph.stretches import row_folds
 
     system = linear_system(solution, cam_T_imu)
     A, b = system.A, system.b
@@ -176,11 +176,7 @@ def extrinsic_fold_gain(solution, cam_T_imu: np.ndarray, other: np.ndarray,
     prior = np.diag(1.0 / PRIOR_SIGMA ** 2)
     cov = np.linalg.inv(A_p.T @ A_p + prior)
     determined = np.sqrt(np.diag(cov)) <= UNDETERMINED_SIGMA
-    T = solution.poses.shape[0]
-    frames = row_frames(A, np.array([solution.linearised()[0].offsets[X(k)] for k in range(T)]))
-    times = np.asarray(solution.cleaned.timestamps, dtype=float)
-    labels = stretch_labels(times - times[0], stretch_s)
-    folds = np.where(frames >= 0, labels[np.clip(frames, 0, T - 1)], -1)
+    folds = row_folds(A, solution.linearised()[0].offsets, solution, stretch_s)
     return fold_gain(A_p, b_p, folds, theta_between(cam_T_imu, other), determined, prior)
 
 

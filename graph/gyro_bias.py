@@ -247,20 +247,15 @@ def bias_fold_gain(solution, stretch_s: float = 10.0):
     folds of ``stretch_s`` seconds) at a smoother solved with the bias removed
     (``solution.gyro_bias``, "alternate"): the bias fitted without each stretch against the
     null ``b = 0``, i.e. ``db = -b``."""
-    from vislam.graph.drift_check import stretch_labels
-    from vislam.graph.out_of_sample import fold_gain, profile_rows, row_frames
-    from vislam.graph.pose_conversions import X
+    from vislam.graph.out_of_sample import fold_gain, profile_rows
+    from vislam.graph.stretches import row_folds
 
     system, posterior_of = solution.linearised()
     rows, A_b = motion_bias_jacobian(solution)
     A_t = np.zeros((system.A.shape[0], 3))
     A_t[rows] = A_b
     A_p, b_p = profile_rows(system.A, system.b, A_t, posterior_of.solve)
-    T = solution.poses.shape[0]
-    frames = row_frames(system.A, np.array([system.offsets[X(k)] for k in range(T)]))
-    times = np.asarray(solution.cleaned.timestamps, dtype=float)
-    labels = stretch_labels(times - times[0], stretch_s)
-    folds = np.where(frames >= 0, labels[np.clip(frames, 0, T - 1)], -1)
+    folds = row_folds(system.A, system.offsets, solution, stretch_s)
     bias = np.zeros(3) if solution.gyro_bias is None else np.asarray(solution.gyro_bias, dtype=float)
     return fold_gain(A_p, b_p, folds, -bias, np.ones(3, dtype=bool))
 

@@ -171,21 +171,16 @@ def radial_fold_gain(solution, k1: float, stretch_s: float = 10.0):
     """The radial term's out-of-sample gain over none (:func:`graph.out_of_sample.fold_gain`,
     folds of ``stretch_s`` seconds) at a smoother solved with ``k1`` removed from its pixels:
     the term fitted without each stretch against the null ``k1 = 0`` (a change of ``-k1``)."""
-    from vislam.graph.drift_check import stretch_labels
     from vislam.graph.extrinsic import linear_system
-    from vislam.graph.out_of_sample import fold_gain, profile_rows, row_frames
-    from vislam.graph.pose_conversions import X
+    from vislam.graph.out_of_sample import fold_gain, profile_rows
+    from vislam.graph.stretches import row_folds
 
     system, posterior_of = solution.linearised()
     stereo = linear_system(solution, solution.calibration.cam_T_imu).stereo
     A_t = np.zeros((system.A.shape[0], 1))
     A_t[stereo] = radial_jacobian(solution, k1)
     A_p, b_p = profile_rows(system.A, system.b, A_t, posterior_of.solve)
-    T = solution.poses.shape[0]
-    frames = row_frames(system.A, np.array([system.offsets[X(k)] for k in range(T)]))
-    times = np.asarray(solution.cleaned.timestamps, dtype=float)
-    labels = stretch_labels(times - times[0], stretch_s)
-    folds = np.where(frames >= 0, labels[np.clip(frames, 0, T - 1)], -1)
+    folds = row_folds(system.A, system.offsets, solution, stretch_s)
     return fold_gain(A_p, b_p, folds, np.array([-float(k1)]), np.ones(1, dtype=bool))
 
 

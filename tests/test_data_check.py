@@ -16,7 +16,7 @@ from vislam.graph.data_check import (
     interval_residuals,
     velocity_check,
 )
-from vislam.graph.drift_check import stretch_labels
+from vislam.graph.stretches import stretch_labels
 from vislam.graph.settings import SmootherSettings
 from vislam.graph.smoother import solve_smoother
 
