@@ -11,7 +11,7 @@ Simulation (:mod:`eval.imu_sim`, monocular room flight, seeds 0..runs-1): the IM
 identified over the sheet's, then the pose NEES (6 dof, against the truth in the estimate's
 frame-0 gauge) and ATE of the smoother under the sheet and under the identified figures; ANEES
 over the runs with its 95 % bounds. EuRoC (``--euroc``): the ASL IMU with gtsam's eqvio tracks,
-the same two solves, ATE 4-dof aligned and pose NEES against the ground truth in the estimate's
+the same solves and the usable figures' (the sheet's for what was withheld), ATE 4-dof aligned and pose NEES against the ground truth in the estimate's
 gauge (as benchmarks/inertial_smoother.py).
 """
 
@@ -26,7 +26,8 @@ import numpy as np  # noqa: E402
 
 from vislam.eval.consistency import chi2_bounds  # noqa: E402
 from vislam.eval.metrics import ate_rmse, nees, pose_errors  # noqa: E402
-from vislam.graph.inertial_identification import FIGURES, identify_imu_noise, with_noise  # noqa: E402
+from vislam.graph.inertial_identification import (COLD_START_NEES, FIGURES,  # noqa: E402
+                                                  identify_imu_noise, with_noise)
 from vislam.graph.inertial_init import in_estimate_gauge  # noqa: E402
 from vislam.graph.inertial_smoother import smooth  # noqa: E402
 
@@ -57,6 +58,7 @@ def simulated(args) -> None:
         ident = scores(smooth(with_noise(drive, fit.noise)), truth.frame_poses)
         rows.append((fit.ratio, sheet, ident))
         print(f"{seed:4d} | {' '.join(f'{r:.3f}' for r in fit.ratio)} | {','.join(fit.undetermined) or '-'} | "
+              f"withheld {','.join(fit.withheld) or '-'} cold {fit.cold_start_nees:.2g} | "
               f"{fit.pixel_sigma:.3f} | {fit.iterations}{'' if fit.converged else '*'} | "
               f"{sheet[0]:.2f} / {ident[0]:.2f} | {sheet[1] * 1e3:.2f} / {ident[1] * 1e3:.2f}")
     ratios = np.array([r[0] for r in rows])
@@ -83,10 +85,19 @@ def euroc(args) -> None:
     truth = to_gravity_world(gt.poses[i])
     fit = identify_imu_noise(drive, max_iterations=args.iterations)
     print(f"EuRoC V1_01 30 s: EM {fit.iterations} steps ({'converged' if fit.converged else 'NOT converged'}), "
-          f"{fit.seconds:.0f} s; undetermined: {', '.join(fit.undetermined) or 'none'}")
+          f"{fit.seconds:.0f} s; undetermined: {', '.join(fit.undetermined) or 'none'}; still moving: "
+          f"{', '.join(fit.unconverged) or 'none'}; withheld: {', '.join(fit.withheld) or 'none'}; "
+          f"cold-start check {fit.cold_start_nees:.3g} (allowed {COLD_START_NEES:g}); "
+          f"{'trusted' if fit.trusted else 'NOT trusted'}")
+    print("  posterior share: " + " ".join(f"{m:.3f}" for m in fit.missing_share))
     for name, sheet, value, sd, ratio in fit.rows():
         print(f"  {name:<20} sheet {sheet:.4g}  identified {value:.4g}  sigma {sd:.2g}  ratio {ratio:.3f}")
-    for what, d in (("sheet", drive), ("identified", with_noise(drive, fit.noise))):
+    print("  usable / sheet: " + " ".join(f"{r:.3f}" for r in fit.usable.as_array() / fit.sheet.as_array()))
+    n, ate = scores(fit.result, truth)
+    print(f"  smoother under the identified figures from EM's last solution: ATE 4-dof {ate:.4f} m, "
+          f"pose NEES mean {n:.1f}")
+    for what, d in (("sheet", drive), ("identified", with_noise(drive, fit.noise)),
+                    ("usable", with_noise(drive, fit.usable))):
         n, ate = scores(smooth(d), truth)
         print(f"  smoother under the {what} figures: ATE 4-dof {ate:.4f} m, pose NEES mean {n:.1f}")
 

@@ -5,7 +5,12 @@ Prints the data sheet's figures (the file's ``imu_noise``) beside the identified
 one's standard deviation and the ratio, the figures the drive cannot determine (kept at the
 sheet's), and the smoother's IMU and pixel statistics under the identified model.
 
-``--out DRIVE.npz`` writes the drive again with the identified figures as its ``imu_noise``: the
+Whether the identified figures are to be used is said first and plainly: a figure EM did not
+settle (still moving at its last step) and, when the smoother does not find the identified
+model's solution from its own initial values, every figure, keeps the sheet's value in what is
+written (``ImuNoiseFit.usable``, :mod:`graph.inertial_identification`), named with the reason.
+
+``--out DRIVE.npz`` writes the drive again with the usable figures as its ``imu_noise``: the
 raw-IMU estimators (the smoother, the EKFs, dead reckoning) read the IMU noise from the drive
 file, and the ``[model]`` table of ``--config`` holds velocity-drive settings only, so that is
 the route a raw-IMU model has. The pixel sigma is printed, not written (the drive file has no
@@ -63,10 +68,34 @@ def run_raw_imu(args: argparse.Namespace) -> int:
     fit = identify_imu_noise(drive, max_iterations=args.max_iterations)
     print(report(drive.name, drive.n_frames, fit))
     if out is not None:
-        identified = with_noise(drive, fit.noise)
-        save_inertial_drive(out, identified)
-        print(f"wrote {out} (the drive with the identified imu_noise)", file=sys.stderr)
+        save_inertial_drive(out, with_noise(drive, fit.usable))
+        kept = fit.withheld + fit.undetermined
+        print(f"wrote {out} (the drive with the identified imu_noise"
+              + (f"; the sheet's for {', '.join(kept)}" if kept else "") + ")", file=sys.stderr)
     return 0
+
+
+def verdict(fit) -> str:
+    """One plain line: whether the identified figures can be used, and if not which and why."""
+    from vislam.graph.inertial_identification import COLD_START_NEES
+
+    if fit.trusted:
+        kept = (f"; the drive does not determine {', '.join(fit.undetermined)}: the sheet's kept"
+                if fit.undetermined else "")
+        return ("identified figures: usable (EM converged and the smoother finds their solution "
+                f"from its own initial values{kept})")
+    why = []
+    if fit.unconverged:
+        why.append(f"EM had not settled {', '.join(fit.unconverged)} after {fit.iterations} steps")
+    if fit.undetermined_at_end:
+        why.append(f"the posterior holds over 99 % of the residuals of {', '.join(fit.undetermined_at_end)} "
+                   "at the model EM reached")
+    if fit.cold_start_nees > COLD_START_NEES:
+        why.append(f"the smoother under the identified figures, started from its own initial values, "
+                   f"lands {fit.cold_start_nees:.3g} squared sigmas a frame from their solution "
+                   f"(allowed {COLD_START_NEES:g}): a different minimum")
+    return (f"identified figures: NOT to be trusted as a whole ({'; '.join(why)}); the sheet's value "
+            f"is kept (and written) for {', '.join(fit.withheld + fit.undetermined)}")
 
 
 def report(name: str, frames: int, fit) -> str:
@@ -74,11 +103,15 @@ def report(name: str, frames: int, fit) -> str:
     lines = [f"calibrate {name} ({frames} frames, raw IMU): EM around the raw-IMU smoother, "
              f"{fit.iterations} steps ({'converged' if fit.converged else 'NOT converged'}), "
              f"{fit.seconds:.1f} s", "",
-             "| quantity | data sheet (file) | identified | sigma | identified / sheet |",
-             "|---|---|---|---|---|"]
+             verdict(fit), "",
+             "| quantity | data sheet (file) | identified | sigma | identified / sheet | written |",
+             "|---|---|---|---|---|---|"]
+    usable = dict(zip(LABELS, fit.usable.as_array())) if fit.usable is not None else {}
     for key, sheet, value, sd, ratio in fit.rows():
         sd_text = "undetermined" if not np.isfinite(sd) else f"{sd:.2g}"
-        lines.append(f"| {LABELS[key]} | {sheet:.4g} | {value:.4g} | {sd_text} | {ratio:.3g} |")
+        written = (("sheet's" if usable[key] == sheet else "identified") if key in usable
+                   else "not written")
+        lines.append(f"| {LABELS[key]} | {sheet:.4g} | {value:.4g} | {sd_text} | {ratio:.3g} | {written} |")
     lines.append("")
     if fit.undetermined:
         lines.append(f"the drive cannot determine {', '.join(fit.undetermined)} (the posterior holds "
@@ -90,7 +123,7 @@ def report(name: str, frames: int, fit) -> str:
         lines.append(f"IMU factors under the identified model: mean chi2 {info['imu_chi2_mean']:.2f} + "
                      f"leverage {info['imu_leverage_mean']:.2f} of 15")
     for key, ratio in zip(LABELS, fit.ratio):
-        if key not in fit.undetermined and max(ratio, 1.0 / ratio) > 1.5:
+        if key not in fit.undetermined + fit.withheld and max(ratio, 1.0 / ratio) > 1.5:
             lines.append(f"the sheet's {key} is {max(ratio, 1.0 / ratio):.1f}x off the data's: the "
                          "raw-IMU estimators given it misweigh the IMU against vision")
     lines.append("camera-IMU extrinsic: not checked for raw-IMU drives (the file's is used; "
