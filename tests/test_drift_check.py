@@ -93,11 +93,11 @@ def test_hausman_statistic_leaves_out_directions_vision_does_not_see():
 
 
 def test_the_true_model_explains_simulated_drives():
-    """chi2/dof over drives under their true model is about 1 (each 250 frames, 2 stretches of
-    10 s)."""
+    """chi2/dof over drives under their true model is about 1 (each 200 frames, 2 stretches of
+    10 s; seeds 0-5: 0.56-1.85 a drive, 0.96 in all)."""
     chi2 = dof = 0.0
     for seed in range(6):
-        solution, cfg = _solved(SimConfig(seed=seed, n_frames=250))
+        solution, cfg = _solved(SimConfig(seed=seed, n_frames=200))
         check = drift_check(solution, cfg)
         assert check.dof > 0 and sum(s.dof for s in check.stretches) == check.dof
         assert all(s.last > s.first for s in check.stretches)

@@ -115,8 +115,9 @@ def _within(fit_, truth_ratio, name, rtol=0.2, n_sigma=3.0):
     assert abs(value / want - 1.0) <= rtol or abs(value - want) <= n_sigma * sd, (name, value / want, sd / want)
 
 
-#: (seed, true noise over the sheet): a sheet 3x too low, and a sheet that is right.
-CASES = [(1, 3.0), (3, 1.0)]
+#: (seed, true noise over the sheet): a sheet 3x too low, and a sheet that is right (model
+#: identification: the second in the regression tier, the fast tier keeps the first).
+CASES = [(1, 3.0), pytest.param(3, 1.0, marks=pytest.mark.regression)]
 
 
 @pytest.mark.parametrize("seed, scale", CASES)
