@@ -252,8 +252,8 @@ def drift_check(solution, config: FilterConfig, *, stretch_s: float = STRETCH_S,
     if T >= 2:
         scale = interval_jacobians(solution.twist[:T - 1], solution.tau[:T - 1])
         labels = stretch_labels(rel_t[:-1], stretch_s)
-        spans = [(int(np.flatnonzero(labels == s)[0]), int(np.flatnonzero(labels == s)[-1]) + 1)
-                 for s in range(int(labels.max()) + 1)]
+        starts = np.flatnonzero(np.r_[True, np.diff(labels) != 0])  # labels never decrease
+        spans = [(int(a), int(b)) for a, b in zip(starts, np.r_[starts[1:], labels.size])]
         for (a, b), joint in zip(spans, joint_pose_marginals(reduced, T, spans)):
             D, P_D = dead_reckoning_relative(deltas, scale, W, a, b)
             S, P_S = smoother_relative(poses, joint, a, b)

@@ -107,24 +107,30 @@ class ExtrinsicSystem:
     A_t: np.ndarray  # (3N, 6) whitened Jacobian of the stereo rows on theta (EXTRINSIC_JACOBIAN)
 
 
-def linear_system(solution, cam_T_imu: np.ndarray) -> ExtrinsicSystem:
-    """GTSAM's linearisation of a solved smoother and the extrinsic's whitened Jacobian."""
-    problem = solution.problem
-    rows = problem.rows
-    T = solution.poses.shape[0]
-    system, _ = solution.linearised()
-    A, b, offsets = system.A, system.b, system.offsets
-    n_rows = A.shape[0]
-    # The stereo factors follow the pose prior and the T-1 motion factors (graph.factors).
-    graph = problem.graph
+def stereo_rows(solution) -> slice:
+    """The rows of a solved smoother's stereo factors in its linearisation, 3 per row of
+    ``problem.rows`` (they follow the pose prior and the T-1 motion factors: graph.factors);
+    EstimationError where the graph is not so built."""
+    graph, T = solution.problem.graph, solution.poses.shape[0]
     start = sum(int(graph.at(i).dim()) for i in range(T))
-    N = len(rows)
+    N = len(solution.problem.rows)
     stereo = slice(start, start + 3 * N)
     if N and not (isinstance(graph.at(T), gtsam.GenericStereoFactor3D)
                   and isinstance(graph.at(T + N - 1), gtsam.GenericStereoFactor3D)
-                  and stereo.stop <= n_rows):
+                  and stereo.stop <= solution.linearised()[0].A.shape[0]):
         raise EstimationError("extrinsic: the graph's stereo factors are not where "
                               "graph.factors.build_graph puts them")
+    return stereo
+
+
+def linear_system(solution, cam_T_imu: np.ndarray) -> ExtrinsicSystem:
+    """GTSAM's linearisation of a solved smoother and the extrinsic's whitened Jacobian."""
+    rows = solution.problem.rows
+    T = solution.poses.shape[0]
+    system, _ = solution.linearised()
+    A, b, offsets = system.A, system.b, system.offsets
+    stereo = stereo_rows(solution)
+    N = len(rows)
     pose_cols = np.array([offsets[X(int(k))] for k in range(T)])
     A_st = A[stereo].tocoo()
     local = A_st.col - pose_cols[np.repeat(rows.frame, 3)[A_st.row]]
@@ -164,19 +170,13 @@ def extrinsic_fold_gain(solution, cam_T_imu: np.ndarray, other: np.ndarray,
     ``cam_T_imu`` (:func:`graph.out_of_sample.fold_gain`; folds: ``stretch_s`` stretches of the
     drive, :func:`graph.stretches.stretch_labels`). The components fitted are those the drive
     determines (:func:`extrinsic_step`), under the weak prior ``PRIOR_SIGMA``."""
-    from vislam.graph.out_of_sample import fold_gain, profile_rows
-    from vislam.graph.stretches import row_folds
+    from vislam.graph.out_of_sample import fold_gain, term_rows
 
     system = linear_system(solution, cam_T_imu)
-    A, b = system.A, system.b
-    A_t = np.zeros((A.shape[0], 6))
-    A_t[system.stereo] = system.A_t
-    _, posterior_of = solution.linearised()
-    A_p, b_p = profile_rows(A, b, A_t, posterior_of.solve)
+    A_p, b_p, folds = term_rows(solution, system.stereo, system.A_t, stretch_s)
     prior = np.diag(1.0 / PRIOR_SIGMA ** 2)
     cov = np.linalg.inv(A_p.T @ A_p + prior)
     determined = np.sqrt(np.diag(cov)) <= UNDETERMINED_SIGMA
-    folds = row_folds(A, solution.linearised()[0].offsets, solution, stretch_s)
     return fold_gain(A_p, b_p, folds, theta_between(cam_T_imu, other), determined, prior)
 
 
@@ -212,5 +212,5 @@ def lever_arm_covariance(cam_T_imu: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return G @ cov @ G.T
 
 
-__all__ = ["ExtrinsicStep", "ExtrinsicSystem", "linear_system", "extrinsic_step", "extrinsic_fold_gain", "perturb_cam_T_imu", "theta_map", "lever_arm",
+__all__ = ["ExtrinsicStep", "ExtrinsicSystem", "linear_system", "extrinsic_step", "extrinsic_fold_gain", "stereo_rows", "perturb_cam_T_imu", "theta_map", "lever_arm",
            "lever_arm_covariance", "theta_between", "mahalanobis", "PRIOR_SIGMA", "UNDETERMINED_SIGMA"]

@@ -211,6 +211,7 @@ def estimate_bias(poses: np.ndarray, deltas: np.ndarray, D: np.ndarray, covs: np
                 break
     return b
 
+
 def motion_bias_jacobian(solution) -> tuple[np.ndarray, np.ndarray]:
     """``(rows, A_b)``: the whitened Jacobian (6 (T-1), 3) of a solved smoother's motion
     factors on a change ``db`` of the gyro bias removed from its motions, and the factors' rows
@@ -247,15 +248,9 @@ def bias_fold_gain(solution, stretch_s: float = 10.0):
     folds of ``stretch_s`` seconds) at a smoother solved with the bias removed
     (``solution.gyro_bias``, "alternate"): the bias fitted without each stretch against the
     null ``b = 0``, i.e. ``db = -b``."""
-    from vislam.graph.out_of_sample import fold_gain, profile_rows
-    from vislam.graph.stretches import row_folds
+    from vislam.graph.out_of_sample import fold_gain, term_rows
 
-    system, posterior_of = solution.linearised()
     rows, A_b = motion_bias_jacobian(solution)
-    A_t = np.zeros((system.A.shape[0], 3))
-    A_t[rows] = A_b
-    A_p, b_p = profile_rows(system.A, system.b, A_t, posterior_of.solve)
-    folds = row_folds(system.A, system.offsets, solution, stretch_s)
+    A_p, b_p, folds = term_rows(solution, rows, A_b, stretch_s)
     bias = np.zeros(3) if solution.gyro_bias is None else np.asarray(solution.gyro_bias, dtype=float)
     return fold_gain(A_p, b_p, folds, -bias, np.ones(3, dtype=bool))
-

@@ -69,33 +69,21 @@ def frame_and_landmark_covariances(graph: gtsam.NonlinearFactorGraph, values: gt
     return m.P, m.Pl
 
 
-def imu_factor_statistics(graph: gtsam.NonlinearFactorGraph, marginals: FrameMarginals,
-                          first_imu_factor: int, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(chi2, leverage)`` (T - 1,) of the IMU factors ``graph.at(first_imu_factor + k - 1)``
-    (interval ``[k - 1, k]``): the squared whitened residual at the solution and
-    ``tr(A_f Sigma_f A_f^T)``, the part of the factor's 15 dimensions the estimate's own
+def moment_traces(E: np.ndarray, L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(chi2, leverage)`` (T - 1,) from the moments of :func:`imu_factor_moments`: the
+    squared whitened residual at the solution ``tr(E - L) = |b|^2`` and ``tr(L) =
+    tr(A_f Sigma_f A_f^T)``, the part of the factor's 15 dimensions the estimate's own
     uncertainty accounts for. EM's update of one scale ``c`` on every IMU factor's covariance
     is ``c' = c * sum(chi2 + leverage) / (15 (T - 1))``: 1 when the data sheet's noise
     explains the residuals."""
-    dims = np.array([graph.at(i).dim() for i in range(graph.size())], dtype=np.int64)
-    offsets = np.concatenate([[0], np.cumsum(dims)])
-    chi2 = np.empty(n_frames - 1)
-    lev = np.empty(n_frames - 1)
-    A = marginals.A
-    for k in range(1, n_frames):
-        i = first_imu_factor + k - 1
-        r0, r1 = int(offsets[i]), int(offsets[i + 1])
-        Af = A[r0:r1, FRAME_DIM * (k - 1):FRAME_DIM * (k + 1)].toarray()
-        Sf = np.block([[marginals.P[k - 1], marginals.P_next[k - 1]],
-                       [marginals.P_next[k - 1].T, marginals.P[k]]])
-        chi2[k - 1] = float(marginals.b[r0:r1] @ marginals.b[r0:r1])
-        lev[k - 1] = float(np.einsum("ij,jk,ik->", Af, Sf, Af))
-    return chi2, lev
+    lev = np.trace(L, axis1=1, axis2=2)
+    return np.trace(E, axis1=1, axis2=2) - lev, lev
 
 
 def imu_factor_moments(graph: gtsam.NonlinearFactorGraph, marginals: FrameMarginals,
                        first_imu_factor: int, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(E, L)`` (T - 1, 15, 15) of the IMU factors (as :func:`imu_factor_statistics`): the
+    """``(E, L)`` (T - 1, 15, 15) of the IMU factors ``graph.at(first_imu_factor + k - 1)``
+    (interval ``[k - 1, k]``): the
     expected outer product of each factor's whitened residual under the Laplace posterior,
     ``E = b b^T + A_f Sigma_f A_f^T``, and its posterior part ``L = A_f Sigma_f A_f^T``, in the
     factor's own whitened coordinates (``r_w = R r``, ``R`` its noise model's ``R()``; the

@@ -77,7 +77,7 @@ from vislam.ekf.conventions import gtsam_cov_to_estimate
 from vislam.ekf.inertial import ACCEL_TURN_ON_BIAS_SIGMA, InertialDrive
 from vislam.graph.inertial_conventions import from_gtsam_bias, gtsam_bias_cov_to_vislam
 from vislam.graph.inertial_factors import preintegrate, preintegration_params, triangulate_track
-from vislam.graph.inertial_marginals import frame_marginals, imu_factor_moments, imu_factor_statistics
+from vislam.graph.inertial_marginals import frame_marginals, imu_factor_moments, moment_traces
 from vislam.graph.inertial_init import RestDetector, RestInterval, detect_rest, gravity_aligned_rotation
 from vislam.graph.inertial_keyframes import keyframe_drive, keyframes
 from vislam.graph.pose_conversions import estimation_error
@@ -717,8 +717,8 @@ def to_result(problem: InertialProblem, solution: Solution, name: str = ESTIMATO
         try:
             m = frame_marginals(graph, values, T, solution.tracks)
             P, Pl = m.P, m.Pl
-            chi2, lev = imu_factor_statistics(graph, m, problem.priors().size(), T)
             moments, leverage = imu_factor_moments(graph, m, problem.priors().size(), T)
+            chi2, lev = moment_traces(moments, leverage)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             raise estimation_error(exc, "computing marginals", estimator=ESTIMATOR) from None
         for k in range(T):  # one joint block per frame: [X (6), V (3), B (6)]

@@ -103,6 +103,28 @@ def row_frames(A: sp.spmatrix, pose_columns: np.ndarray) -> np.ndarray:
     return out
 
 
+def term_rows(solution, rows, A_rows: np.ndarray,
+              stretch_s: float = 10.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A~, b~, folds)`` of a term at a solved smoother (:class:`graph.smoother.SmootherSolution`):
+    its whitened Jacobian ``A_rows`` on the linearisation's rows ``rows`` (a slice or indices;
+    zero elsewhere) with the nuisance profiled out (:func:`profile_rows`), and each row's fold,
+    the ``stretch_s`` stretch of the earliest pose it touches (-1: none;
+    :func:`graph.stretches.stretch_labels`)."""
+    from vislam.graph.pose_conversions import X
+    from vislam.graph.stretches import stretch_labels
+
+    system, posterior_of = solution.linearised()
+    A_rows = np.asarray(A_rows, dtype=float)
+    A_t = np.zeros((system.A.shape[0], A_rows.shape[1]))
+    A_t[rows] = A_rows
+    A_p, b_p = profile_rows(system.A, system.b, A_t, posterior_of.solve)
+    T = solution.poses.shape[0]
+    frames = row_frames(system.A, np.array([system.offsets[X(k)] for k in range(T)]))
+    times = np.asarray(solution.cleaned.timestamps, dtype=float)
+    labels = stretch_labels(times - times[0], stretch_s)
+    return A_p, b_p, np.where(frames >= 0, labels[np.clip(frames, 0, T - 1)], -1)
+
+
 def fold_gain(A_p: np.ndarray, b_p: np.ndarray, folds: np.ndarray, null: np.ndarray,
               components: np.ndarray, prior: np.ndarray | None = None) -> FoldGain:
     """The out-of-sample gain (module docstring) from the profiled rows ``A_p`` (rows, p) and
@@ -134,4 +156,4 @@ def fold_gain(A_p: np.ndarray, b_p: np.ndarray, folds: np.ndarray, null: np.ndar
                     n_components=int(d.size))
 
 
-__all__ = ["FoldGain", "fold_gain", "profile_rows", "row_frames"]
+__all__ = ["FoldGain", "fold_gain", "profile_rows", "row_frames", "term_rows"]

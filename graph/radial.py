@@ -146,7 +146,7 @@ def radial_jacobian(solution, k1: float) -> np.ndarray:
     ``[sigma, sigma, sigma / sqrt(2)]`` and ``w`` the robust kernel's weight, read off the
     linearised right-hand side of the row against its error."""
     from vislam.ekf.camera import undistort_pixels
-    from vislam.graph.extrinsic import linear_system
+    from vislam.graph.extrinsic import stereo_rows
     from vislam.graph.factors import stereo_residuals
 
     rows = solution.problem.rows
@@ -158,9 +158,7 @@ def radial_jacobian(solution, k1: float) -> np.ndarray:
     ratio = np.array([1.0, 1.0, np.sqrt(2.0)])  # 1 / sigma_c in units of 1 / sigma
     r, _ = stereo_residuals(solution.poses, solution.landmarks, solution.calibration, rows)
     e = -r * ratio  # GTSAM's error (predicted - measured) times sigma / sigma_c
-    system, _ = solution.linearised()
-    stereo = linear_system(solution, solution.calibration.cam_T_imu).stereo
-    b = system.b[stereo].reshape(-1, 3)
+    b = solution.linearised()[0].b[stereo_rows(solution)].reshape(-1, 3)
     ee = np.sum(e * e, axis=1)
     scale = np.where(ee > 1e-18, -np.sum(b * e, axis=1) / np.where(ee > 1e-18, ee, 1.0), np.nan)
     scale = np.where(np.isfinite(scale), scale, np.nanmedian(scale) if np.isfinite(scale).any() else 0.0)
@@ -171,16 +169,11 @@ def radial_fold_gain(solution, k1: float, stretch_s: float = 10.0):
     """The radial term's out-of-sample gain over none (:func:`graph.out_of_sample.fold_gain`,
     folds of ``stretch_s`` seconds) at a smoother solved with ``k1`` removed from its pixels:
     the term fitted without each stretch against the null ``k1 = 0`` (a change of ``-k1``)."""
-    from vislam.graph.extrinsic import linear_system
-    from vislam.graph.out_of_sample import fold_gain, profile_rows
-    from vislam.graph.stretches import row_folds
+    from vislam.graph.extrinsic import stereo_rows
+    from vislam.graph.out_of_sample import fold_gain, term_rows
 
-    system, posterior_of = solution.linearised()
-    stereo = linear_system(solution, solution.calibration.cam_T_imu).stereo
-    A_t = np.zeros((system.A.shape[0], 1))
-    A_t[stereo] = radial_jacobian(solution, k1)
-    A_p, b_p = profile_rows(system.A, system.b, A_t, posterior_of.solve)
-    folds = row_folds(system.A, system.offsets, solution, stretch_s)
+    A_p, b_p, folds = term_rows(solution, stereo_rows(solution), radial_jacobian(solution, k1),
+                                stretch_s)
     return fold_gain(A_p, b_p, folds, np.array([-float(k1)]), np.ones(1, dtype=bool))
 
 

@@ -20,18 +20,4 @@ def stretch_labels(times: np.ndarray, stretch_s: float) -> np.ndarray:
     return labels
 
 
-def row_folds(A, offsets: dict, solution, stretch_s: float) -> np.ndarray:
-    """The fold (stretch index) of each row of a linearisation ``A`` (its ``offsets``: key ->
-    first column) of ``solution``'s graph: the stretch of the earliest pose the row touches, -1
-    for rows touching none (:func:`graph.out_of_sample.row_frames`)."""
-    from vislam.graph.out_of_sample import row_frames
-    from vislam.graph.pose_conversions import X
-
-    T = solution.poses.shape[0]
-    frames = row_frames(A, np.array([offsets[X(k)] for k in range(T)]))
-    times = np.asarray(solution.cleaned.timestamps, dtype=float)
-    labels = stretch_labels(times - times[0], stretch_s)
-    return np.where(frames >= 0, labels[np.clip(frames, 0, T - 1)], -1)
-
-
-__all__ = ["row_folds", "stretch_labels"]
+__all__ = ["stretch_labels"]
