@@ -152,14 +152,18 @@ def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings,
     params.setAbsoluteErrorTol(settings.absolute_error_tol)
     params.setUseFixedLambdaFactor(settings.lm_damping == "fixed")
     params.setLinearSolverType(LINEAR_SOLVERS[settings.linear_solver])
-    if problem.scale is not None or problem.values.exists(BIAS_KEY):
-        # Python factors (speed scale, joint gyro bias): the loop that hands them Python-owned values
-        return _python_values_lm(problem, settings, params)
     try:
         # COLAMD once: without an ordering GTSAM's LM orders the damped linear system again at
         # every trial step (14 % of an iteration on a 1,224-frame drive), and the structure
         # never changes during a solve; the ordering is the same, so are the iterates.
-        params.setOrdering(gtsam.Ordering.ColamdNonlinearFactorGraph(problem.graph))
+        ordering = gtsam.Ordering.ColamdNonlinearFactorGraph(problem.graph)
+    except RuntimeError as exc:
+        raise estimation_error(exc, "optimising") from None
+    if problem.scale is not None or problem.values.exists(BIAS_KEY):
+        # Python factors (speed scale, joint gyro bias): the loop that hands them Python-owned values
+        return _python_values_lm(problem, settings, params, ordering)
+    try:
+        params.setOrdering(ordering)
         optimizer = gtsam.LevenbergMarquardtOptimizer(problem.graph, problem.values, params)
         initial_error = optimizer.error()  # the graph's error at the values, as LM keeps it
         result = _optimize(optimizer, params)
@@ -173,7 +177,8 @@ def _levenberg_marquardt(problem: GraphProblem, settings: SmootherSettings,
 
 
 def _python_values_lm(problem: GraphProblem, settings: SmootherSettings,
-                      params: gtsam.LevenbergMarquardtParams) -> tuple[gtsam.Values, int, float, float]:
+                      params: gtsam.LevenbergMarquardtParams,
+                      ordering: gtsam.Ordering) -> tuple[gtsam.Values, int, float, float]:
     """:func:`_levenberg_marquardt` for a graph with one Python ``CustomFactor`` per interval
     (the speed scale, :mod:`graph.speed_scale`; the joint gyro bias, :mod:`graph.gyro_bias`): GTSAM's LM hands each Python factor a copy of
     its whole ``Values`` at every evaluation (pybind11 copies a C++-owned argument), so an
@@ -182,7 +187,8 @@ def _python_values_lm(problem: GraphProblem, settings: SmootherSettings,
     reference). The steps are GTSAM's LM's (``LevenbergMarquardtOptimizer::tryLambda``): the
     linearisation damped by ``lambda I`` on every variable (Nielsen's rule or a fixed factor,
     ``settings.lm_damping``; GTSAM's default lambda bounds and model-fidelity threshold), the
-    same stopping rule (``gtsam.checkConvergence``)."""
+    same stopping rule (``gtsam.checkConvergence``), eliminating in ``ordering`` (COLAMD's, as
+    for GTSAM's LM)."""
     graph = problem.graph
     solver = settings.linear_solver
     lam, lam_max, factor = params.getlambdaInitial(), params.getlambdaUpperBound(), params.getlambdaFactor()
@@ -191,7 +197,6 @@ def _python_values_lm(problem: GraphProblem, settings: SmootherSettings,
         values = gtsam.Values(problem.values)
         error = graph.error(values)
         initial_error = error
-        ordering = gtsam.Ordering.ColamdNonlinearFactorGraph(graph)
         zero = values.zeroVectors()  # each variable's dimension
         dims = {int(k): zero.at(k).size for k in values.keys()}
         iterations = 0
