@@ -77,8 +77,9 @@ def _unit(module: str) -> str:
     return SHARED_WORKER.get(module, module)
 
 
-#: Seconds of the dearest units of work (SHARED_WORKER), measured on 2 busy cores in .ci/run
-#: (2026-12-02; the campaign's fixture runs its own two processes): ``--dist loadfile`` sends
+#: Seconds of the dearest units of work (SHARED_WORKER), measured in the regression tier on 2
+#: busy cores (docs/findings.md, 2026-12-02; the campaign's fixture runs its own two
+#: processes): ``--dist loadfile`` sends
 #: them out first, so that the run does not end on one worker while the other idles (longest
 #: first). The rest follow, regression units before fast ones, in file order. Only the order
 #: of the run depends on these figures, never a verdict.
