@@ -72,6 +72,18 @@ def pytest_xdist_make_scheduler(config, log):
     return SharedWorkerScheduling(config, log)
 
 
+@pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook, on the controller
+def pytest_configure_node(node):
+    """Tell each worker the run's distribution mode: xdist sets a worker's own ``dist`` to
+    "no", and the workers' collection order is the one the scheduler sends out (_distribution)."""
+    node.workerinput["vislam_dist"] = node.config.getvalue("dist")
+
+
+def _distribution(config) -> str:
+    """The run's ``--dist`` mode, in the controller and in an xdist worker alike."""
+    return getattr(config, "workerinput", {}).get("vislam_dist", config.getvalue("dist"))
+
+
 def _unit(module: str) -> str:
     """The unit of work of a test file under ``--dist loadfile`` (SHARED_WORKER)."""
     return SHARED_WORKER.get(module, module)
@@ -79,10 +91,10 @@ def _unit(module: str) -> str:
 
 #: Seconds of the dearest units of work (SHARED_WORKER), measured in the regression tier on 2
 #: busy cores (docs/findings.md, 2026-12-02; the campaign's fixture runs its own two
-#: processes): ``--dist loadfile`` sends
-#: them out first, so that the run does not end on one worker while the other idles (longest
-#: first). The rest follow, regression units before fast ones, in file order. Only the order
-#: of the run depends on these figures, never a verdict.
+#: processes): ``--dist loadfile`` sends them out first, so that the run does not end on one
+#: worker while the other idles (longest first). The rest follow, regression units before
+#: fast ones, in file order. Only the order of the run depends on these figures, never a
+#: verdict.
 UNIT_SECONDS = {
     "tests/regression/test_campaign_drives.py": 206,
     "tests/test_calibrate.py": 293,  # with tests/test_track_correlation.py
@@ -100,15 +112,17 @@ UNIT_SECONDS = {
 
 def _dearest_first(items) -> None:
     """Reorder ``items`` (in place, stable within a unit) by UNIT_SECONDS, dearest first."""
-    def unit(item) -> str:
-        return _unit(item.nodeid.split("::")[0])
-
-    regression = {unit(i) for i in items if i.get_closest_marker("regression")}
-    first = {}
+    units = {id(item): _unit(item.nodeid.split("::")[0]) for item in items}
+    regression = {units[id(i)] for i in items if i.get_closest_marker("regression")}
+    first: dict[str, int] = {}
     for i, item in enumerate(items):
-        first.setdefault(unit(item), i)
-    items.sort(key=lambda item: (-UNIT_SECONDS.get(unit(item), 0), unit(item) not in regression,
-                                 first[unit(item)]))
+        first.setdefault(units[id(item)], i)
+
+    def key(item):
+        u = units[id(item)]
+        return -UNIT_SECONDS.get(u, 0), u not in regression, first[u]
+
+    items.sort(key=key)
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -129,7 +143,7 @@ def pytest_collection_modifyitems(config, items):
 def pytest_collection_modifyitems_selected(config, items):
     """After ``-m`` selected: under ``--dist loadfile`` the dearest units first
     (UNIT_SECONDS)."""
-    if config.getvalue("dist") == "loadfile":
+    if _distribution(config) == "loadfile":
         _dearest_first(items)
 
 
