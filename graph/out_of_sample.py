@@ -103,13 +103,15 @@ def row_frames(A: sp.spmatrix, pose_columns: np.ndarray) -> np.ndarray:
     return out
 
 
-def term_rows(solution, rows, A_rows: np.ndarray,
-              stretch_s: float = 10.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def term_rows(solution, rows, A_rows: np.ndarray, stretch_s: float = 10.0,
+              b: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(A~, b~, folds)`` of a term at a solved smoother (:class:`graph.smoother.SmootherSolution`):
     its whitened Jacobian ``A_rows`` on the linearisation's rows ``rows`` (a slice or indices;
     zero elsewhere) with the nuisance profiled out (:func:`profile_rows`), and each row's fold,
     the ``stretch_s`` stretch of the earliest pose it touches (-1: none;
-    :func:`graph.stretches.stretch_labels`)."""
+    :func:`graph.stretches.stretch_labels`). ``b`` replaces the linearisation's right-hand
+    side (all rows), for a term whose likelihood takes some rows elsewhere (the radial term's
+    lens pixels, :func:`graph.radial.lens_rows`)."""
     from vislam.graph.pose_conversions import X
     from vislam.graph.stretches import stretch_labels
 
@@ -117,7 +119,7 @@ def term_rows(solution, rows, A_rows: np.ndarray,
     A_rows = np.asarray(A_rows, dtype=float)
     A_t = np.zeros((system.A.shape[0], A_rows.shape[1]))
     A_t[rows] = A_rows
-    A_p, b_p = profile_rows(system.A, system.b, A_t, posterior_of.solve)
+    A_p, b_p = profile_rows(system.A, system.b if b is None else b, A_t, posterior_of.solve)
     T = solution.poses.shape[0]
     frames = row_frames(system.A, np.array([system.offsets[X(k)] for k in range(T)]))
     times = np.asarray(solution.cleaned.timestamps, dtype=float)

@@ -128,15 +128,18 @@ def test_a_real_gyro_bias_gains_out_of_sample():
     assert held["gain"] > 0.5 * held["in_sample"] > 10.0, held
 
 
-def test_radial_jacobian_matches_finite_differences_of_the_whitened_stereo_errors():
-    """graph.radial.radial_jacobian against central differences of the whitened stereo errors
-    in k1, on the rows inside the robust kernel's quadratic part (weight 1)."""
-    from vislam.ekf.camera import distort_pixels, undistort_pixels
+def test_lens_rows_are_the_whitened_lens_pixel_errors_and_their_derivative_in_k1():
+    """graph.radial.lens_rows: on the rows inside the robust kernel's quadratic part (weight 1),
+    its right-hand side is minus the whitened stereo error in the measured (lens) pixels, and
+    its Jacobian the central difference of that error in k1 with the poses and landmarks held;
+    every other row is the linearisation's own."""
+    from vislam.ekf.camera import distort_pixels
     from vislam.ekf.config import FilterConfig
     from vislam.ekf.model import without_radial
     from vislam.eval.simulate import SimConfig, simulate
+    from vislam.graph.extrinsic import stereo_rows
     from vislam.graph.factors import stereo_residuals
-    from vislam.graph.radial import radial_jacobian
+    from vislam.graph.radial import lens_rows
     from vislam.graph.settings import SmootherSettings
     from vislam.graph.smoother import solve_smoother
 
@@ -145,27 +148,58 @@ def test_radial_jacobian_matches_finite_differences_of_the_whitened_stereo_error
     config = FilterConfig(pixel_sigma=1.0)
     settings = SmootherSettings()
     sol = solve_smoother(without_radial(drive.sequence, k1), config, settings)
-    A = radial_jacobian(sol, k1).reshape(-1, 3)
+    b, A_k = lens_rows(sol, k1)
     rows = sol.problem.rows
     K = np.asarray(sol.calibration.K)
-    z_lens = distort_pixels(rows.z, K, k1)
+    measured = distort_pixels(rows.z, K, k1)  # the file's lens pixels
+    r, _ = stereo_residuals(sol.poses, sol.landmarks, sol.calibration, rows)
+    v = 0.5 * (rows.z[:, 1] + rows.z[:, 3]) - r[:, 2]
+    predicted = np.stack([rows.z[:, 0] - r[:, 0], v, rows.z[:, 2] - r[:, 1], v], axis=1)
     sigma_c = config.pixel_sigma * np.array([1.0, 1.0, 1.0 / np.sqrt(2.0)])
 
-    def whitened(k):
-        m = undistort_pixels(z_lens, K, k)
-        measured = np.stack([m[:, 0], m[:, 2], 0.5 * (m[:, 1] + m[:, 3])], axis=1)
-        r, _ = stereo_residuals(sol.poses, sol.landmarks, sol.calibration, rows)
-        predicted = rows.measured - r
-        return (predicted - measured) / sigma_c
+    def whitened_error(k):  # predicted - measured, in the lens image
+        d = distort_pixels(predicted, K, k) - measured
+        return np.stack([d[:, 0], d[:, 2], 0.5 * (d[:, 1] + d[:, 3])], axis=1) / sigma_c
 
     h = 1e-5
-    numeric = (whitened(k1 + h) - whitened(k1 - h)) / (2 * h)
-    inside = np.linalg.norm(whitened(k1), axis=1) < settings.huber_k
+    numeric = (whitened_error(k1 + h) - whitened_error(k1 - h)) / (2 * h)
+    inside = np.linalg.norm(r / sigma_c, axis=1) < settings.huber_k
     assert inside.mean() > 0.9
+    stereo = stereo_rows(sol)
+    A = A_k[stereo, 0].reshape(-1, 3)
+    rel = np.abs(A[inside] - numeric[inside]) / (np.abs(numeric[inside]) + 1e-6)
     # the row's robust scale is read off GTSAM's right-hand side against vislam's own residual:
     # on a few rows (0.1 %) the two projections differ by 1e-4 of the error
-    rel = np.abs(A[inside] - numeric[inside]) / (np.abs(numeric[inside]) + 1e-6)
     assert np.mean(rel < 1e-4) > 0.995 and rel.max() < 1e-2
+    e = b[stereo].reshape(-1, 3)
+    np.testing.assert_allclose(e[inside], -whitened_error(k1)[inside], rtol=1e-3, atol=1e-6)
+    system = sol.linearised()[0]
+    others = np.ones(b.size, dtype=bool)
+    others[stereo] = False
+    np.testing.assert_array_equal(b[others], system.b[others])
+    assert not np.any(A_k[others])
+
+
+def test_the_lens_estimate_is_where_its_own_step_stays():
+    """graph.radial.lens_estimate: solved again at its estimate, the Gauss-Newton step on the
+    likelihood in the measured pixels lands within a fifth of a sigma of it (the fixed point
+    that the secant through two steps gives), and within 3 sigma of the simulator's lens."""
+    from vislam.ekf.config import FilterConfig
+    from vislam.eval.simulate import SimConfig, simulate
+    from vislam.graph.radial import lens_estimate, lens_step, solve_at
+    from vislam.graph.settings import SmootherSettings
+    from vislam.graph.smoother import solve_smoother
+
+    drive = simulate(SimConfig(seed=2, n_frames=80, radial_k1=0.02, velocity_sigma=0.05,
+                               gyro_sigma=0.005))
+    config = FilterConfig(velocity_sigma=0.05, gyro_sigma=0.005)
+    settings = SmootherSettings(compute_marginals=False)
+    start = solve_smoother(drive.sequence, config, settings)
+    k1, sigma, steps, last = lens_estimate(drive.sequence, config, settings, start)
+    assert len(steps) == 2 and sigma < 0.005
+    landing, _ = lens_step(solve_at(drive.sequence, config, settings, k1, last), k1)
+    assert abs(landing - k1) < 0.2 * sigma, (k1, landing, sigma, steps)
+    assert abs(k1 - 0.02) < 3.0 * sigma, (k1, sigma)
 
 
 @pytest.mark.regression
