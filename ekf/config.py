@@ -273,8 +273,10 @@ class FilterConfig:
     #: Split tracks at exact repeats (the shared data's quirk) before estimating.
     clean_tracks: bool = True
     #: Reject observations with disparity below this (px) and points beyond max_depth (m).
+    #: The default 1,000 m leaves the cut to min_disparity on a KITTI-like rig (1 px is 390 m
+    #: there): far points pin the heading, and the smoother keeps them too.
     min_disparity: float = 1.0
-    max_depth: float = 100.0
+    max_depth: float = 1000.0
     #: Which velocity sample covers [k, k+1]: u_k ("current", the paper), u_{k+1} ("next"),
     #: or the mean of the two ("mean").
     velocity_pairing: str = "mean"

@@ -269,7 +269,10 @@ def test_one_corrupt_gyro_sample(name, caplog):
 
 @pytest.mark.parametrize("name", ESTIMATOR_NAMES)
 def test_all_features_shifted_by_1e5_px(name):
-    est = run_checked(name, shift_pixels(base_drive(0), 1e5))
+    # A depth cut of 100 m (the default until 2026-12-02) takes the EKFs down the numerical
+    # rejection path on this drive, which the test covers; with the default 1,000 m
+    # ekf-decoupled gets through without one.
+    est = run_checked(name, shift_pixels(base_drive(0), 1e5), FilterConfig(max_depth=100.0))
     if name in ("ekf-decoupled", "ekf-joint", "ekf-invariant"):
         assert rejections(est) >= 1  # crashed before (LinAlgError / not positive definite)
 
