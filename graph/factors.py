@@ -99,6 +99,12 @@ def dead_reckoning(seq: Sequence, config: FilterConfig) -> np.ndarray:
 
 
 # --- vision ---------------------------------------------------------------------------------
+def stereo_measurement(z: np.ndarray) -> np.ndarray:
+    """GTSAM's stereo rows ``[uL, uR, v]`` (N, 3, ...) of pixel rows ``[uL, vL, uR, vR]``
+    (N, 4, ...): ``v`` the mean of vL and vR (pixels, their changes or their Jacobians)."""
+    return np.stack([z[:, 0], z[:, 2], 0.5 * (z[:, 1] + z[:, 3])], axis=1)
+
+
 @dataclass
 class StereoRows:
     """Stereo observations in use: frame (N,), track (N,), pixels z (N, 4) [uL, vL, uR, vR]."""
@@ -116,7 +122,7 @@ class StereoRows:
     @property
     def measured(self) -> np.ndarray:
         """GTSAM's stereo measurement ``[uL, uR, v]`` (N, 3), ``v`` the mean of vL and vR."""
-        return np.stack([self.z[:, 0], self.z[:, 2], 0.5 * (self.z[:, 1] + self.z[:, 3])], axis=1)
+        return stereo_measurement(self.z)
 
 
 def usable_rows(seq: Sequence, min_disparity: float) -> tuple[StereoRows, np.ndarray]:

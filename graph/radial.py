@@ -74,7 +74,7 @@ class RadialFit:
 
     k1: float | None  # None: the data support none
     estimate: float  # the bias-corrected estimate, kept or not
-    std: float  # inf when the profile has no minimum
+    std: float  # inf when the pixels carry no information on the term
     test: dict = field(default_factory=dict)
     solution: object = None  # the smoother's solution under ``k1`` (warm start for EM)
 
@@ -99,7 +99,7 @@ def lens_rows(solution, k1: float) -> tuple[np.ndarray, np.ndarray]:
     and ``w`` the robust kernel's weight, read off the linearised right-hand side of the row
     against its pinhole error."""
     from vislam.graph.extrinsic import stereo_rows
-    from vislam.graph.factors import stereo_residuals
+    from vislam.graph.factors import stereo_measurement, stereo_residuals
 
     rows = solution.problem.rows
     K = np.asarray(solution.calibration.K, dtype=float)
@@ -109,9 +109,6 @@ def lens_rows(solution, k1: float) -> tuple[np.ndarray, np.ndarray]:
     predicted = np.stack([z[:, 0] - r_pin[:, 0], v, z[:, 2] - r_pin[:, 1], v], axis=1)
     residual = distort_pixels(z, K, k1) - distort_pixels(predicted, K, k1)  # measured - predicted
     moves = distort_pixels(predicted, K, 1.0) - distort_pixels(predicted, K, 0.0)  # d/dk1, exact
-
-    def uuv(d: np.ndarray) -> np.ndarray:
-        return np.stack([d[:, 0], d[:, 2], 0.5 * (d[:, 1] + d[:, 3])], axis=1)
 
     system = solution.linearised()[0]
     stereo = stereo_rows(solution)
@@ -123,9 +120,9 @@ def lens_rows(solution, k1: float) -> tuple[np.ndarray, np.ndarray]:
     scale = np.where(np.isfinite(scale), scale, np.nanmedian(scale) if np.isfinite(scale).any() else 0.0)
     whiten = scale[:, None] * ratio
     b = np.array(system.b, dtype=float)
-    b[stereo] = (whiten * uuv(residual)).reshape(-1)  # GTSAM's b is minus the whitened error
+    b[stereo] = (whiten * stereo_measurement(residual)).reshape(-1)  # GTSAM's b is minus the whitened error
     A_k = np.zeros((b.size, 1))
-    A_k[stereo, 0] = (whiten * uuv(moves)).reshape(-1)
+    A_k[stereo, 0] = (whiten * stereo_measurement(moves)).reshape(-1)
     return b, A_k
 
 

@@ -204,11 +204,11 @@ def landmark_jacobians(poses: np.ndarray, landmarks: np.ndarray, calib, rows: St
     ``vR``), up to the pixel sigma (:data:`_WHITEN`)."""
     from vislam.ekf.camera import dpi_dq
     from vislam.ekf.geometry import se3_inv
-    from vislam.graph.factors import camera_points
+    from vislam.graph.factors import camera_points, stereo_measurement
 
     q = camera_points(poses, landmarks, calib, rows)
     H = calib.M @ dpi_dq(np.concatenate([q, np.ones((q.shape[0], 1))], axis=1))[:, :, :3]
-    rows_3 = np.stack([H[:, 0], H[:, 2], 0.5 * (H[:, 1] + H[:, 3])], axis=1)
+    rows_3 = stereo_measurement(H)
     R = (calib.cam_T_imu @ se3_inv(poses[rows.frame]))[:, :3, :3]  # d q / d p
     return (rows_3 * _WHITEN[None, :, None]) @ R
 
