@@ -137,13 +137,17 @@ def test_keep_landmarks_equals_the_dense_textbook_update(noisy_sim, param, linea
 def assert_same_as_dense(fast, dense, min_landmarks: int) -> np.ndarray:
     """``fast`` (keep_landmarks through retired regressions) equals ``dense`` (its textbook
     form) to 1e-9 with more than ``min_landmarks`` landmarks (a landmark to 1e-9 m plus 1e-10 of
-    its coordinates: a far one, whose pixels barely fix its depth, is solved to that relative
-    precision); returns which tracks have one."""
+    its range: a far one, whose pixels barely fix its depth, is solved to that relative
+    precision along its ray, which reaches each of its coordinates; per coordinate, a 38 m
+    landmark's 4.4 m one differed by 2.9e-9 m with another CPU's BLAS); returns which tracks
+    have one."""
     has = dense.has_landmark
     assert has.sum() > min_landmarks and np.array_equal(has, fast.has_landmark)
     np.testing.assert_allclose(fast.poses, dense.poses, rtol=0, atol=1e-9)
     np.testing.assert_allclose(fast.pose_cov, dense.pose_cov, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(fast.landmarks[has], dense.landmarks[has], rtol=1e-10, atol=1e-9)
+    error = np.abs(fast.landmarks[has] - dense.landmarks[has])
+    tolerance = 1e-9 + 1e-10 * np.linalg.norm(dense.landmarks[has], axis=1, keepdims=True)
+    np.testing.assert_array_less(error, np.broadcast_to(tolerance, error.shape))
     scale = np.abs(dense.landmark_cov[has]).max(axis=(1, 2))[:, None, None]
     np.testing.assert_array_less(np.abs(fast.landmark_cov[has] - dense.landmark_cov[has]) / scale, 1e-9)
     return has
