@@ -138,9 +138,9 @@ def assert_same_as_dense(fast, dense, min_landmarks: int) -> np.ndarray:
     """``fast`` (keep_landmarks through retired regressions) equals ``dense`` (its textbook
     form) to 1e-9 with more than ``min_landmarks`` landmarks (a landmark to 1e-9 m plus 1e-10 of
     its range: a far one, whose pixels barely fix its depth, is solved to that relative
-    precision along its ray, which reaches each of its coordinates; per coordinate, a 38 m
-    landmark's 4.4 m one differed by 2.9e-9 m with another CPU's BLAS); returns which tracks
-    have one."""
+    precision along its ray, and the ray's error reaches every coordinate, small ones too: a
+    38 m landmark's 4.4 m coordinate differed by 2.9e-9 m on another CPU's BLAS); returns which
+    tracks have one."""
     has = dense.has_landmark
     assert has.sum() > min_landmarks and np.array_equal(has, fast.has_landmark)
     np.testing.assert_allclose(fast.poses, dense.poses, rtol=0, atol=1e-9)
