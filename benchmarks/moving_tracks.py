@@ -1,0 +1,110 @@
+"""Which tracks dead reckoning refutes: each track's static point under the velocities' motion.
+
+    .venv/bin/python benchmarks/moving_tracks.py FILE.npz [--threshold PX] [--write DIR]
+
+At the drive's identified model (`vislam calibrate`'s, from the cache: its extrinsic, pairing,
+gyro bias, lens term and time offsets applied to the data), the poses are the velocities'
+alone (graph.factors.dead_reckoning, no vision), and each track of 3 or more observations is
+triangulated from all its stereo rows under those poses (one linear solve: left u, v and right
+u per observation). A landmark that stands still reprojects within the pixel noise plus what
+dead reckoning drifts over the track's span; one on a moving object does not. The script prints
+the rms reprojection error (px) of the tracks by the frame where they start (median, 90th
+percentile, share above ``--threshold``), and with ``--write DIR`` writes a copy of the drive
+without the tracks above the threshold to ``DIR/NAME.npz`` (with the drive's ground truth
+copied beside it), for `vislam bench DIR/NAME.npz`. The drive's own folder is never written.
+
+This is a research tool for docs/findings.md (2026-12-03): the threshold is not a test with a
+level, and a velocity fault (one bad sample) would make every track across it fail here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from vislam.ekf.config import FilterConfig
+from vislam.ekf.model import model_config, model_sequence
+from vislam.eval.groundtruth import ground_truth_path
+from vislam.eval.loader import load_sequence
+from vislam.eval.model_cache import identified_model
+from vislam.graph.factors import dead_reckoning
+from vislam.graph.settings import SmootherSettings
+
+
+def track_rms(seq, config: FilterConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(track, first_frame, rms)`` of every track of 3 or more observations: the rms
+    reprojection error (px, left u, v and right u) of its static point under dead reckoning."""
+    calib = seq.calibration
+    cam_T_world = np.linalg.inv(dead_reckoning(seq, config) @ np.linalg.inv(calib.cam_T_imu))[:, :3, :]
+    K = np.asarray(calib.K, dtype=float)
+    shift = np.zeros((3, 4))
+    shift[0, 3] = calib.baseline
+    o = seq.obs
+    frame, track, z = o.frame_index, o.track, o.z
+    order = np.lexsort((frame, track))
+    frame, track, z = frame[order], track[order], z[order]
+    starts = np.flatnonzero(np.r_[True, track[1:] != track[:-1]])
+    ends = np.r_[starts[1:], track.size]
+    out = []
+    for a, e in zip(starts, ends):
+        if e - a < 3:
+            continue
+        M = cam_T_world[frame[a:e]]
+        L, R = K @ M, K @ (M - shift)
+        A = np.concatenate([z[a:e, 0:1] * L[:, 2] - L[:, 0], z[a:e, 1:2] * L[:, 2] - L[:, 1],
+                            z[a:e, 2:3] * R[:, 2] - R[:, 0]])
+        h = np.linalg.svd(A)[2][-1]
+        pl, pr = L @ h, R @ h
+        if abs(h[3]) < 1e-12 or np.any(pl[:, 2] / h[3] <= 0):
+            rms = np.inf
+        else:
+            r = np.c_[pl[:, 0] / pl[:, 2] - z[a:e, 0], pl[:, 1] / pl[:, 2] - z[a:e, 1],
+                      pr[:, 0] / pr[:, 2] - z[a:e, 2]]
+            rms = float(np.sqrt(np.mean(r ** 2)))
+        out.append((track[a], frame[a], rms))
+    out = np.array(out, dtype=float).reshape(-1, 3)
+    return out[:, 0].astype(int), out[:, 1].astype(int), out[:, 2]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("file", type=Path)
+    parser.add_argument("--threshold", type=float, default=3.0, help="px (default 3)")
+    parser.add_argument("--write", type=Path, help="folder for the drive without those tracks")
+    args = parser.parse_args()
+    seq = load_sequence(args.file)
+    model = identified_model(seq, FilterConfig(), SmootherSettings()).model
+    tracks, first, rms = track_rms(model_sequence(seq, model), model_config(FilterConfig(), model))
+    n = seq.n_frames
+    edges = sorted({0, 10, 20, 40, 100, n} | {min(n, e) for e in (300, 1000)})
+    print(f"{args.file}: {tracks.size} tracks of 3 or more observations; rms reprojection (px) "
+          "of each one's static point under dead reckoning")
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (first >= lo) & (first < hi)
+        if m.any():
+            q50, q90 = np.percentile(rms[m], [50, 90])
+            print(f"  starting in frames {lo:4d}-{hi - 1:<4d}: {m.sum():5d} tracks, median {q50:6.2f}, "
+                  f"90 % {q90:6.2f}, above {args.threshold:g} px {np.mean(rms[m] > args.threshold):5.1%}")
+    bad = tracks[rms > args.threshold]
+    print(f"  all: {bad.size} of {tracks.size} above {args.threshold:g} px")
+    if args.write is not None:
+        if args.write.resolve() == args.file.parent.resolve():
+            parser.error("--write: give another folder than the drive's own")
+        data = dict(np.load(args.file))
+        columns = np.asarray(seq.track_origin, dtype=int)[bad]
+        data["features"] = np.array(data["features"], copy=True)
+        data["features"][:, columns, :] = -1.0
+        args.write.mkdir(parents=True, exist_ok=True)
+        np.savez(args.write / args.file.name, **data)
+        gt = ground_truth_path(args.file)
+        if gt.is_file():
+            (args.write / "groundtruth").mkdir(exist_ok=True)
+            shutil.copy(gt, args.write / "groundtruth" / gt.name)
+        print(f"  wrote {args.write / args.file.name} without them")
+
+
+if __name__ == "__main__":
+    main()
