@@ -55,7 +55,8 @@ POINT_STEPS = 3
 class TrackTest:
     """Per tested track (3 or more observations): its index, first and last frame, the
     statistic ``r^T S^-1 r``, its degrees of freedom and the chance ``p_value`` of at least
-    that for a static point under the model."""
+    that for a static point under the model (NaN where the fitted point falls behind a
+    camera: not tested)."""
 
     track: np.ndarray
     first: np.ndarray
