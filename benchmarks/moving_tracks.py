@@ -32,8 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
+from vislam.ekf.camera import project
 from vislam.ekf.config import FilterConfig
+from vislam.ekf.geometry import homogeneous
 from vislam.ekf.model import model_config, model_sequence
+from vislam.ekf.motion_check import linear_point
+from vislam.ekf.sequence import track_runs
 from vislam.eval.groundtruth import ground_truth_path
 from vislam.eval.loader import load_sequence
 from vislam.eval.model_cache import identified_model
@@ -45,31 +49,22 @@ def track_rms(seq, config: FilterConfig) -> tuple[np.ndarray, np.ndarray, np.nda
     """``(track, first_frame, rms)`` of every track of 3 or more observations: the rms
     reprojection error (px, left u, v and right u) of its static point under dead reckoning."""
     calib = seq.calibration
-    cam_T_world = np.linalg.inv(dead_reckoning(seq, config) @ np.linalg.inv(calib.cam_T_imu))[:, :3, :]
-    K = np.asarray(calib.K, dtype=float)
-    shift = np.zeros((3, 4))
-    shift[0, 3] = calib.baseline
+    X, M = np.asarray(calib.cam_T_imu, dtype=float), np.asarray(calib.M, dtype=float)
+    U = np.linalg.inv(dead_reckoning(seq, config))  # imu_T_world
     o = seq.obs
-    frame, track, z = o.frame_index, o.track, o.z
-    order = np.lexsort((frame, track))
-    frame, track, z = frame[order], track[order], z[order]
-    starts = np.flatnonzero(np.r_[True, track[1:] != track[:-1]])
-    ends = np.r_[starts[1:], track.size]
+    order, starts, ends = track_runs(o.frame_index, o.track)
+    frame, track, z = o.frame_index[order], o.track[order], o.z[order]
     out = []
     for a, e in zip(starts, ends):
         if e - a < 3:
             continue
-        M = cam_T_world[frame[a:e]]
-        L, R = K @ M, K @ (M - shift)
-        A = np.concatenate([z[a:e, 0:1] * L[:, 2] - L[:, 0], z[a:e, 1:2] * L[:, 2] - L[:, 1],
-                            z[a:e, 2:3] * R[:, 2] - R[:, 0]])
-        h = np.linalg.svd(A)[2][-1]
-        pl, pr = L @ h, R @ h
-        if abs(h[3]) < 1e-12 or np.any(pl[:, 2] / h[3] <= 0):
+        Uk = U[frame[a:e]]
+        p = linear_point(Uk, X, M, z[a:e])
+        c = X @ Uk @ homogeneous(p) if np.all(np.isfinite(p)) else None
+        if c is None or np.any(c[:, 2] <= 0):
             rms = np.inf
         else:
-            r = np.c_[pl[:, 0] / pl[:, 2] - z[a:e, 0], pl[:, 1] / pl[:, 2] - z[a:e, 1],
-                      pr[:, 0] / pr[:, 2] - z[a:e, 2]]
+            r = project(M, c)[:, :3] - z[a:e, :3]  # left u, v and right u
             rms = float(np.sqrt(np.mean(r ** 2)))
         out.append((track[a], frame[a], rms))
     out = np.array(out, dtype=float).reshape(-1, 3)

@@ -42,6 +42,7 @@ from vislam.ekf.camera import dpi_dq, pi
 from vislam.ekf.errors import InputError
 from vislam.ekf.geometry import adjoint, homogeneous, odot
 from vislam.ekf.prediction import motion_increment, paired_velocities
+from vislam.ekf.sequence import track_runs
 
 #: GTSAM's stereo rows [uL, uR, v] of the pixels [uL, vL, uR, vR].
 ROWS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.5, 0.0, 0.5]])
@@ -173,11 +174,8 @@ def track_tests(seq, velocity_cov: np.ndarray, pairing: str, pixel_sigma: float,
     U, F = dead_reckoning_inverse(seq.velocities, seq.dt, pairing)
     Q = np.asarray(seq.dt, dtype=float)[:, None, None] ** 2 * W
     o = seq.obs
-    frame, track, z = o.frame_index, o.track, o.z
-    order = np.lexsort((frame, track))
-    frame, track, z = frame[order], track[order], z[order]
-    starts = np.flatnonzero(np.r_[True, track[1:] != track[:-1]]) if track.size else np.zeros(0, int)
-    ends = np.r_[starts[1:], track.size]
+    order, starts, ends = track_runs(o.frame_index, o.track)
+    frame, track, z = o.frame_index[order], o.track[order], o.z[order]
     rows = []
     for s, e in zip(starts, ends):
         if e - s < min_views:

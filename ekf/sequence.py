@@ -19,6 +19,16 @@ from vislam.ekf.camera import stereo_matrix
 from vislam.ekf.geometry import se3_inv
 
 
+
+def track_runs(frame: np.ndarray, track: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Observation rows grouped by track: ``(order, starts, ends)``, where the rows of the j-th
+    track (in increasing track index) are ``order[starts[j]:ends[j]]``, in frame order."""
+    frame, track = np.asarray(frame), np.asarray(track)
+    order = np.lexsort((frame, track))
+    t = track[order]
+    starts = np.flatnonzero(np.r_[True, t[1:] != t[:-1]]) if t.size else np.zeros(0, dtype=np.int64)
+    return order, starts, np.r_[starts[1:], t.size].astype(np.int64)
+
 @dataclass(frozen=True)
 class Calibration:
     """Left camera intrinsics ``K`` (3x3), stereo ``baseline`` (m), and ``cam_T_imu`` (4x4),

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vislam.ekf.errors import InputError
+from vislam.ekf.sequence import track_runs
 
 #: Depth bands (m) of the report: near landmarks carry most of the left-only depth precision.
 DEPTH_BANDS = ((1.0, 10.0), (10.0, 20.0), (20.0, 40.0), (40.0, 80.0))
@@ -97,10 +98,8 @@ def baseline_from_truth(camera_poses: np.ndarray, frame: np.ndarray, track: np.n
     seen = (frame < P.shape[0]) & np.all(np.isfinite(P[np.minimum(frame, P.shape[0] - 1)]),
                                          axis=(1, 2))
     frame, track, z = frame[seen], track[seen], z[seen]
-    order = np.lexsort((frame, track))
-    frame, track, z = frame[order], track[order], z[order]
-    starts = np.flatnonzero(np.r_[True, track[1:] != track[:-1]])
-    ends = np.r_[starts[1:], track.size]
+    order, starts, ends = track_runs(frame, track)
+    frame, z = frame[order], z[order]
     depth, measured, used = [], [], 0
     for a, e in zip(starts, ends):
         if e - a < min_views:
