@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vislam.ekf.geometry import hat
-from vislam.ekf.sequence import Observations, Sequence
+from vislam.ekf.sequence import Observations, Sequence, track_runs
 
 log = logging.getLogger(__name__)
 
@@ -266,12 +266,10 @@ def clean_sequence(
         keep &= ~rep
         # Part index of each observation within its track: repeats (dropped) and inconsistent
         # returns (kept, the first of their part) seen so far in the track.
-        order = np.lexsort((frame, track))
+        order, start, end = track_runs(frame, track)
         rep_s = (rep | cut)[order]
-        t_s = track[order]
         count = np.cumsum(rep_s)
-        start = np.flatnonzero(np.r_[True, t_s[1:] != t_s[:-1]])
-        part_s = count - np.repeat(count[start] - rep_s[start], np.diff(np.r_[start, n_in]))
+        part_s = count - np.repeat(count[start] - rep_s[start], end - start)
         part = np.empty_like(part_s)
         part[order] = part_s
         later = keep & (part > 0)

@@ -706,6 +706,15 @@ def interval_sigma_factor(pairing: str) -> float:
     return math.sqrt(0.5) if pairing == "mean" else 1.0
 
 
+def ar1_coefficient(correlation_time: float | None) -> float:
+    """The per-frame correlation ``a = (tau - 1) / (tau + 1)`` of AR(1) errors whose integrated
+    correlation time is ``tau = (1 + a) / (1 - a)`` (module docstring); 0 (white) for None or
+    ``tau <= 1``."""
+    if correlation_time is None or correlation_time <= 1.0:
+        return 0.0
+    return (correlation_time - 1.0) / (correlation_time + 1.0)
+
+
 def long_run_pixel_sigma(pixel_sigma: float, correlation_time: float | None) -> float:
     """The pixel sigma the estimators use: ``pixel_sigma * sqrt(tau)`` for errors correlated
     along a track over ``tau`` frames (module docstring), ``pixel_sigma`` for none."""

@@ -41,6 +41,7 @@ from scipy.special import gammaincc
 from vislam.ekf.camera import dpi_dq, pi
 from vislam.ekf.errors import InputError
 from vislam.ekf.geometry import adjoint, homogeneous, odot
+from vislam.ekf.model import ar1_coefficient
 from vislam.ekf.prediction import motion_increment, paired_velocities
 from vislam.ekf.sequence import track_runs
 
@@ -165,9 +166,7 @@ def track_tests(seq, velocity_cov: np.ndarray, pairing: str, pixel_sigma: float,
     W = np.asarray(velocity_cov, dtype=float)
     if W.shape != (6, 6):
         raise InputError(f"motion check: twist covariance of shape {W.shape}, need (6, 6)")
-    a = 0.0
-    if pixel_correlation_time is not None and pixel_correlation_time > 1.0:
-        a = (pixel_correlation_time - 1.0) / (pixel_correlation_time + 1.0)
+    a = ar1_coefficient(pixel_correlation_time)
     calib = seq.calibration
     M = np.asarray(calib.M, dtype=float)
     X = np.asarray(calib.cam_T_imu, dtype=float)

@@ -53,6 +53,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vislam.ekf.model import ar1_coefficient
+from vislam.ekf.sequence import track_runs
 from vislam.graph.factors import StereoRows
 
 #: Longest lag summed (frames).
@@ -137,7 +139,7 @@ def lag_pairs(frame: np.ndarray, track: np.ndarray, lags) -> dict[int, tuple[np.
     exactly m ``frame``\\ s apart with every frame between observed too (pairs across a
     removed observation are left out), for each lag m in ``lags``."""
     frame, track = np.asarray(frame), np.asarray(track)
-    order = np.lexsort((frame, track))
+    order = track_runs(frame, track)[0]
     f, t = frame[order], track[order]
     out = {}
     for lag in lags:
@@ -216,14 +218,13 @@ def landmark_jacobians(poses: np.ndarray, landmarks: np.ndarray, calib, rows: St
 def ar1_along_tracks(frame: np.ndarray, track: np.ndarray, a: float, white: np.ndarray) -> np.ndarray:
     """Unit-variance AR(1) errors of correlation ``a`` per frame along each track, built from
     the standard normal draws ``white`` (N, d) in the rows' order (``a ** gap`` across a gap)."""
-    frame, track = np.asarray(frame), np.asarray(track)
-    order = np.lexsort((frame, track))
-    f, t = frame[order], track[order]
+    order, first, last = track_runs(frame, track)
+    f = np.asarray(frame)[order]
     w = white[order]
     x = np.empty_like(w)
-    start = np.r_[True, t[1:] != t[:-1]]
-    first = np.flatnonzero(start)
-    position = np.arange(f.size) - np.repeat(first, np.diff(np.r_[first, f.size]))
+    start = np.zeros(f.size, dtype=bool)
+    start[first] = True
+    position = np.arange(f.size) - np.repeat(first, last - first)
     x[start] = w[start]
     by_position = np.argsort(position, kind="stable")
     counts = np.bincount(position)
@@ -291,7 +292,7 @@ def residual_correlation_time(tau: float, fit: LandmarkFit, white: np.ndarray) -
     with correlation time ``tau`` (built from the standard normal draws ``white``, N x 3) once
     each track's landmark (``fit``) is fitted to them, and the residuals' variance over the
     errors' (per degree of freedom the landmarks leave)."""
-    a = (tau - 1.0) / (tau + 1.0)
+    a = ar1_coefficient(tau)
     rows = fit.rows
     r = without_landmark_fit(ar1_along_tracks(rows.frame, rows.track, a, white), fit.jacobians,
                              rows.track, fit.normal)

@@ -14,7 +14,15 @@ import pytest
 from vislam.ekf.config import FilterConfig
 from vislam.ekf.errors import InputError
 from vislam.ekf.geometry import se3_exp
-from vislam.ekf.model import EXTRINSIC_COMPONENTS, Model, apply_model, model_config, model_sequence
+from vislam.ekf.model import (
+    EXTRINSIC_COMPONENTS,
+    Model,
+    apply_model,
+    ar1_coefficient,
+    long_run_pixel_sigma,
+    model_config,
+    model_sequence,
+)
 from vislam.eval.commands.options import add_filter_arguments, filter_config_from_args, model_from_args
 from vislam.eval.simulate import KITTI_CAM_T_IMU, SimConfig, simulate, write_simulation
 
@@ -295,3 +303,14 @@ def test_the_true_model_of_a_faulty_drive_makes_estimates_much_better(tmp_path):
     inv_given, inv_given_true, inv_model = ate["ekf-invariant"]
     assert inv_model < 0.6 * inv_given and inv_model < 0.15 * inv_given_true, ate
     assert inv_model < 0.05, ate
+
+
+def test_ar1_coefficient_inverts_the_correlation_time():
+    """``a`` of AR(1) errors from their integrated correlation time ``tau = (1 + a) / (1 - a)``,
+    white at ``tau <= 1``; their long-run variance ``sigma^2 (1 + a) / (1 - a)`` is the square of
+    the long-run sigma the estimators use."""
+    for a in (0.0, 0.3, 0.8731, 0.99):
+        tau = (1.0 + a) / (1.0 - a)
+        assert ar1_coefficient(tau) == pytest.approx(a, abs=1e-12)
+        assert long_run_pixel_sigma(0.9, tau) ** 2 == pytest.approx(0.81 * (1 + a) / (1 - a))
+    assert ar1_coefficient(None) == 0.0 and ar1_coefficient(1.0) == 0.0 and ar1_coefficient(0.5) == 0.0
