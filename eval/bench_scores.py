@@ -5,8 +5,8 @@ against the smoother's estimate on the same data.
 
     {"schema": 2, "rpe_definition": ..., "rpe_drive_definition": ..., "reference": ...,
      "alignment": "se3", "alignment_definition": ..., "sequences": [
-        {"name", "path", "frames", "has_ground_truth", "has_landmark_truth",
-         "estimators": [
+        {"name", "path", "frames", "has_ground_truth", "has_landmark_truth", "model",
+         "truth_check", "estimators": [
             {"name", "error", "runtime_s", "frames_per_s", "landmarks",
              "ate_m", "ate_aligned_m", "rpe_trans_pct", "rpe_rot_deg_per_100m",
              "rpe_drive_trans_pct", "rpe_drive_rot_deg_per_m", "rpe_drive",
@@ -28,6 +28,10 @@ of :data:`eval.metrics.ALIGN_MODES` (``--align``; "se3" by default, and in files
 the key existed), ``alignment_definition`` says it in words. ``map_rmse_m`` and
 ``nees_landmark_mean`` compare with true landmarks (simulations only); ``vs_smoother`` compares
 with the smoother's estimate on the same sequence (null for the smoothers themselves).
+``truth_check`` is, on a raw-IMU drive with ground truth, how the truth's turn over 1 s compares
+with the gyro's (:func:`eval.inertial_truth.gyro_agreement`: ``interval_s``, ``pairs``,
+``rms_mrad`` per body axis, ``sheet_mrad`` what the IMU's data sheet allows, ``truth_bias``,
+``ratio``), null elsewhere.
 """
 
 from __future__ import annotations
@@ -62,7 +66,7 @@ TRAJECTORY_KEYS = ("ate_m", "ate_aligned_m", "rpe_trans_pct", "rpe_rot_deg_per_1
                    "nees_pose_mean")
 VS_SMOOTHER_KEYS = ("ate_m", "ate_aligned_m", "map_rmse_m", "nees_pose_mean", "inside_95_fraction")
 SEQUENCE_KEYS = ("name", "path", "frames", "has_ground_truth", "has_landmark_truth", "model",
-                 "estimators")
+                 "truth_check", "estimators")
 
 #: What rpe_trans_pct / rpe_rot_deg_per_100m mean in every output.
 RPE_DEFINITION = (
@@ -228,6 +232,7 @@ def score_sequence(bs: BenchSequence, estimators: list[str], outcomes: dict,
         "has_ground_truth": bs.gt is not None,
         "has_landmark_truth": bs.landmark_truth is not None,
         "model": bs.model,
+        "truth_check": bs.truth_check,
         "reference_smoother": ref,
         "alignment": align,
         "estimators": rows,

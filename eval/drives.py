@@ -48,6 +48,9 @@ class BenchSequence:
     #: the model in use, as results.json records it; its "mode": "identified" from the data
     #: (the default, cached), "config" (a [model] table in --config) or "as-given"
     model: dict | None = None
+    #: a raw-IMU drive's ground truth against its gyro (eval.inertial_truth.gyro_agreement,
+    #: as a dict), None for velocity drives and where there is no such truth
+    truth_check: dict | None = None
 
 
 def simulated_sequence(seed: int = 0, frames: int | None = None) -> BenchSequence:
@@ -106,13 +109,15 @@ def load_bench_sequence(path: Path) -> BenchSequence:
     from vislam.eval.loader import load_sequence
 
     if is_inertial_file(path):
-        from vislam.eval.inertial_truth import find_inertial_truth
+        from vislam.eval.inertial_truth import find_inertial_truth, gyro_agreement
 
         drive = load_inertial_drive(path)
         truth = find_inertial_truth(path, drive)
+        agreement = None if truth is None else gyro_agreement(drive, truth)
         return BenchSequence(path.stem, str(path.resolve()), drive,
                              None if truth is None else truth.truth,
-                             landmark_truth_beside(path, drive))
+                             landmark_truth_beside(path, drive),
+                             truth_check=None if agreement is None else agreement.to_dict())
 
     seq = load_sequence(path, clean=False)
     gt = find_ground_truth(path)

@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from vislam.ekf.errors import InputError
 from vislam.ekf.imu_init import level_rotation
 from vislam.ekf.inertial import InertialDrive
+from vislam.ekf.strapdown import held_pieces
 from vislam.eval.groundtruth import GroundTruth
 from vislam.eval.trajectory_files import TimedTrajectory, read_trajectory
 
@@ -37,6 +38,11 @@ from vislam.eval.trajectory_files import TimedTrajectory, read_trajectory
 SAME_INSTANT_S = 1e-5
 #: Interpolate only between ground-truth poses at most this far apart (s).
 MAX_INTERPOLATION_GAP_S = 0.1
+#: The interval (s) over which :func:`gyro_agreement` compares the truth's turn with the gyro's.
+AGREEMENT_INTERVAL_S = 1.0
+#: The truth "turns away from the gyro" where it disagrees by more than this many times what
+#: the data sheet allows the gyro over the interval (rms over pairs and axes).
+AGREEMENT_RATIO = 3.0
 #: The world frame of raw-IMU estimates, in words (reports and docs).
 RAW_IMU_WORLD = ("gravity-aligned (z up), origin at the IMU at frame 0, its orientation there "
                  "the least rotation taking its up direction to z")
@@ -149,3 +155,86 @@ def frame0_gauge(truth: GroundTruth, est_pose0: np.ndarray) -> GroundTruth:
     from vislam.graph.inertial_init import in_estimate_gauge
 
     return replace(truth, poses=in_estimate_gauge(truth.poses, np.asarray(est_pose0)[None]))
+
+
+@dataclass(frozen=True)
+class GyroAgreement:
+    """How the truth's turn between two of its poses ``interval_s`` apart compares with the
+    gyro's over the same interval: ``rms_mrad`` per body axis over ``pairs`` pairs,
+    ``sheet_mrad`` what the data sheet allows the gyro (white noise and bias walk), and whether
+    the truth's own gyro bias was used (else one constant bias fitted to the whole drive)."""
+
+    interval_s: float
+    pairs: int
+    rms_mrad: tuple[float, float, float]
+    sheet_mrad: float
+    truth_bias: bool
+
+    @property
+    def ratio(self) -> float:
+        return float(np.sqrt(np.mean(np.square(self.rms_mrad)))) / self.sheet_mrad
+
+    def to_dict(self) -> dict:
+        return {"interval_s": self.interval_s, "pairs": self.pairs, "rms_mrad": list(self.rms_mrad),
+                "sheet_mrad": self.sheet_mrad, "truth_bias": self.truth_bias, "ratio": self.ratio}
+
+
+def gyro_agreement(drive: InertialDrive, truth: InertialTruth,
+                   interval_s: float = AGREEMENT_INTERVAL_S) -> GyroAgreement | None:
+    """The truth's relative rotation over consecutive ground-truth frames ``interval_s`` apart
+    against the gyro's (each sample held over its piece, :func:`ekf.strapdown.held_pieces`, as
+    every raw-IMU estimator integrates it), less the truth's gyro bias at each frame interval's
+    start, or, where the file has none, the one constant bias that best explains the whole
+    drive. A pose NEES against a truth that turns away from the gyro by more than the sheet
+    allows also counts the truth's own error. None when fewer than two such pairs exist."""
+    frames = np.asarray(truth.truth.frames, dtype=np.int64)
+    R = np.asarray(truth.truth.poses)[:, :3, :3]
+    period = float(np.median(np.diff(drive.timestamps)))
+    lag = max(1, int(round(interval_s / period)))
+    step = np.flatnonzero(np.diff(frames) == 1)  # truth at both ends of frame interval k
+    if step.size < lag + 1:
+        return None
+    t = drive.timestamps[frames]
+    imu = drive.imu
+    turn = np.zeros((frames.size - 1, 3))  # the gyro's rotation vector over each interval
+    exact = Rotation.identity(frames.size - 1)
+    dts = np.diff(t)
+    for k in step:
+        piece = Rotation.identity()
+        for j, dt in _pieces(imu.time, t[k], t[k + 1]):
+            piece = piece * Rotation.from_rotvec(imu.gyro[j] * dt)
+        turn[k] = piece.as_rotvec()
+    truth_rel = Rotation.from_matrix(np.einsum("nji,njk->nik", R[:-1], R[1:]))
+    if truth.gyro_bias is not None:
+        bias = np.asarray(truth.gyro_bias, dtype=float)[:-1]
+    else:  # per interval the truth's turn is the gyro's less bias * dt (small angles)
+        d = (truth_rel[step] * Rotation.from_rotvec(turn[step]).inv()).as_rotvec()
+        bias = np.broadcast_to(-d.sum(axis=0) / dts[step].sum(), (frames.size - 1, 3))
+    exact = Rotation.from_rotvec(turn - bias * dts[:, None])
+    contiguous = np.zeros(frames.size, dtype=bool)
+    contiguous[step] = True
+    chain = [Rotation.identity()]  # the gyro's turn from frame 0 on, through the intervals
+    for k in range(frames.size - 1):
+        chain.append(chain[-1] * exact[k])
+    chain = Rotation.concatenate(chain)
+    run = np.convolve(contiguous[:-1].astype(int), np.ones(lag, dtype=int), "valid")
+    first = np.flatnonzero(run == lag)  # pairs (i, i + lag) with the truth at every frame between
+    if first.size < 2:
+        return None
+    gyro = chain[first].inv() * chain[first + lag]
+    truth_turn = Rotation.from_matrix(np.einsum("nji,njk->nik", R[first], R[first + lag]))
+    e = 1e3 * (truth_turn * gyro.inv()).as_rotvec()
+    T = lag * period
+    noise = drive.calibration.noise
+    sheet = 1e3 * float(np.sqrt(noise.gyro_noise_density ** 2 * T + noise.gyro_random_walk ** 2 * T ** 3 / 3.0))
+    return GyroAgreement(float(T), int(e.shape[0]), tuple(float(x) for x in np.sqrt(np.mean(e * e, axis=0))),
+                         sheet, truth.gyro_bias is not None)
+
+
+def _pieces(time: np.ndarray, t0: float, t1: float) -> list[tuple[int, float]]:
+    """:func:`ekf.strapdown.held_pieces` of ``[t0, t1]`` (the same pieces), reading only the
+    samples around the interval."""
+    lo = max(int(np.searchsorted(time, t0, "right")) - 1, 0)
+    hi = int(np.searchsorted(time, t1, "left"))
+    return [(lo + j, dt) for j, dt in held_pieces(time[lo:hi + 1] if hi + 1 <= time.size else time[lo:],
+                                                   t0, t1)]

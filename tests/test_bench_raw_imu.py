@@ -76,6 +76,11 @@ def test_bench_a_folder_of_both_kinds(drives, tmp_path, capsys, monkeypatch):
     assert float(np.nanmean(pose_nees(est, *data.truth_for(est)))) == pytest.approx(
         row["nees_pose_mean"], rel=1e-6)
     assert (out / "imu-room-mono-2" / "dead-reckoning-imu.estimate.npz").is_file()
+    # the simulated truth turns as its gyro does (noise as the sheet says): no warning in words
+    check = raw["truth_check"]
+    assert check["pairs"] > 10 and 0.5 < check["ratio"] < 2.0, check
+    assert by_name["velocity"]["truth_check"] is None
+    assert "departs from the gyro" not in (out / "summary.md").read_text()
 
 
 def test_an_estimator_of_the_other_kind_only_is_refused(drives, tmp_path, capsys):
@@ -141,3 +146,50 @@ def test_simulate_imu_writes_a_drive_every_command_reads(tmp_path, capsys):
 def test_simulate_imu_flags_of_the_other_kind_are_refused(tmp_path, capsys, argv, fragment):
     assert main(["simulate", *argv, "--out", str(tmp_path / "x")]) == 2
     assert fragment in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+def _truth_turned(truth, rate: float, seed: int = 0):
+    """``truth`` whose rotations carry a slow error: a random walk of ``rate`` rad/sqrt(s) per
+    axis about the body axes, one step per frame."""
+    import dataclasses
+
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    t = truth.truth.times
+    steps = rng.normal(0.0, rate, (t.size, 3)) * np.sqrt(np.r_[0.0, np.diff(t)])[:, None]
+    poses = truth.truth.poses.copy()
+    poses[:, :3, :3] = poses[:, :3, :3] @ Rotation.from_rotvec(np.cumsum(steps, axis=0)).as_matrix()
+    return dataclasses.replace(truth, truth=dataclasses.replace(truth.truth, poses=poses))
+
+
+def test_gyro_agreement_tells_a_truth_that_turns_away_from_its_gyro(drives):
+    """A simulated truth agrees with its gyro within the sheet's noise, with its own gyro bias or
+    with one fitted; the same truth with a slow rotation error of 1 mrad/sqrt(s) (EuRoC's
+    measured disagreement, docs/findings.md 2026-12-03) does not, and the reading says so."""
+    import dataclasses
+
+    from vislam.eval.inertial_files import load_inertial_drive
+    from vislam.eval.inertial_truth import AGREEMENT_RATIO, find_inertial_truth, gyro_agreement
+    from vislam.eval.readings import truth_check_sentence, truth_turns_away
+
+    folder, _ = drives
+    path = folder / "imu-room-mono-2.npz"
+    drive = load_inertial_drive(path)
+    truth = find_inertial_truth(path, drive)
+    own = gyro_agreement(drive, truth)
+    fitted = gyro_agreement(drive, dataclasses.replace(truth, gyro_bias=None))
+    assert own.truth_bias and not fitted.truth_bias
+    assert own.interval_s == pytest.approx(1.0, abs=0.05)
+    for check in (own, fitted):
+        assert 0.5 < check.ratio < 2.0, check
+        assert not truth_turns_away(check.to_dict())
+    bad = gyro_agreement(drive, _truth_turned(truth, 1e-3))
+    assert bad.ratio > 2 * AGREEMENT_RATIO and truth_turns_away(bad.to_dict())
+    words = truth_check_sentence(bad.to_dict())
+    assert "departs from the gyro" in words and f"{bad.ratio:.1f}x" in words
+    # too short a truth for one pair of frames a second apart: no figure
+    short = dataclasses.replace(truth, truth=dataclasses.replace(
+        truth.truth, frames=truth.truth.frames[:10], poses=truth.truth.poses[:10],
+        times=truth.truth.times[:10]), gyro_bias=truth.gyro_bias[:10])
+    assert gyro_agreement(drive, short) is None
