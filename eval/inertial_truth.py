@@ -178,6 +178,20 @@ class GyroAgreement:
         return {"interval_s": self.interval_s, "pairs": self.pairs, "rms_mrad": list(self.rms_mrad),
                 "sheet_mrad": self.sheet_mrad, "truth_bias": self.truth_bias, "ratio": self.ratio}
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "GyroAgreement":
+        """The check as :meth:`to_dict` wrote it (results.json's ``truth_check``)."""
+        return cls(float(d["interval_s"]), int(d["pairs"]), tuple(float(x) for x in d["rms_mrad"]),
+                   float(d["sheet_mrad"]), bool(d["truth_bias"]))
+
+    def words(self) -> str:
+        """The figures in words: how far the truth's turn departs from the gyro's."""
+        axes = " / ".join(f"{x:.2f}" for x in self.rms_mrad)
+        bias = "the truth's own gyro bias" if self.truth_bias else "one constant bias fitted to the drive"
+        return (f"the ground truth's turn over {self.interval_s:.1f} s departs from the gyro's "
+                f"(corrected by {bias}) by {axes} mrad (rms per IMU axis, {self.pairs} pairs), "
+                f"{self.ratio:.1f}x what the IMU's data sheet allows ({self.sheet_mrad:.2f} mrad)")
+
 
 def gyro_agreement(drive: InertialDrive, truth: InertialTruth,
                    interval_s: float = AGREEMENT_INTERVAL_S) -> GyroAgreement | None:

@@ -9,7 +9,7 @@ import math
 
 from vislam.ekf.model import long_run_pixel_sigma
 from vislam.eval.consistency import POSE_NEES_BAND, reference_honesty
-from vislam.eval.inertial_truth import AGREEMENT_RATIO
+from vislam.eval.inertial_truth import AGREEMENT_RATIO, GyroAgreement
 from vislam.eval.metrics import ALIGN_DESCRIPTIONS
 from vislam.eval.rpe_segments import RPE_END_TOLERANCE, lengths_text
 
@@ -261,13 +261,10 @@ def truth_turns_away(check: dict | None) -> bool:
 def truth_check_sentence(check: dict) -> str:
     """In words: how far the ground truth's turn departs from the gyro's, and what that means
     for a pose NEES against it."""
-    axes = " / ".join(f"{x:.2f}" for x in check["rms_mrad"])
-    bias = "the truth's own gyro bias" if check.get("truth_bias") else "one constant bias fitted to the drive"
-    return (f"The ground truth's turn over {check['interval_s']:.1f} s departs from the gyro's "
-            f"(corrected by {bias}) by {axes} mrad (rms per IMU axis, {check['pairs']} pairs), "
-            f"{check['ratio']:.1f}x what the IMU's data sheet allows ({check['sheet_mrad']:.2f} "
-            "mrad): a pose NEES against this truth also counts the truth's own rotation error, "
-            "and overstates the estimators' own by an amount not known here.")
+    words = GyroAgreement.from_dict(check).words()
+    return (f"{words[0].upper()}{words[1:]}: a pose NEES against this truth also counts the "
+            "truth's own rotation error, and overstates the estimators' own by an amount not "
+            "known here.")
 
 
 def _reference_honesty(s: dict) -> list[str]:

@@ -163,7 +163,7 @@ def _truth_turned(truth, rate: float, seed: int = 0):
     return dataclasses.replace(truth, truth=dataclasses.replace(truth.truth, poses=poses))
 
 
-def test_gyro_agreement_tells_a_truth_that_turns_away_from_its_gyro(drives):
+def test_gyro_agreement_tells_a_truth_that_turns_away_from_its_gyro(drives, capsys):
     """A simulated truth agrees with its gyro within the sheet's noise, with its own gyro bias or
     with one fitted; the same truth with a slow rotation error of 1 mrad/sqrt(s) (EuRoC's
     measured disagreement, docs/findings.md 2026-12-03) does not, and the reading says so."""
@@ -193,3 +193,7 @@ def test_gyro_agreement_tells_a_truth_that_turns_away_from_its_gyro(drives):
         truth.truth, frames=truth.truth.frames[:10], poses=truth.truth.poses[:10],
         times=truth.truth.times[:10]), gyro_bias=truth.gyro_bias[:10])
     assert gyro_agreement(drive, short) is None
+    # vislam inspect prints the same figures
+    assert main(["inspect", str(path)]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("ground truth against the gyro"))
+    assert f"{own.ratio:.1f}x what the IMU's data sheet allows" in line

@@ -115,6 +115,7 @@ def test_inspect_a_raw_imu_drive(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "drive: raw IMU" in text and "200.0 Hz" in text and "monocular" in text
     assert "ground truth: " in text and "covers 7 of 10 frames" in text and "with velocity and biases" in text
+    assert "against the gyro" not in text  # under a second of truth: no pair to check it on
     assert main(["inspect", str(out), "--check"]) == 2
     assert "raw-IMU drive" in capsys.readouterr().err
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from vislam.eval.inertial_files import load_inertial_drive
-from vislam.eval.inertial_truth import RAW_IMU_WORLD, find_inertial_truth
+from vislam.eval.inertial_truth import RAW_IMU_WORLD, find_inertial_truth, gyro_agreement
 
 #: Still, window by window (:data:`REST_WINDOW_S`) from the start: the window's mean gyro within
 #: REST_GYRO (rad/s) of the first window's, its mean accelerometer within REST_ACCEL (m/s^2) of
@@ -87,4 +87,7 @@ def summarise_inertial(path: Path, gt_path: Path | None = None) -> list[str]:
         extra = "with velocity and biases" if truth.velocity is not None else "poses only"
         lines.append(f"ground truth: {gt.source}, covers {gt.covers(drive.n_frames)}, path length "
                      f"{length:.2f} m, {extra}; world {RAW_IMU_WORLD}")
+        check = gyro_agreement(drive, truth)
+        if check is not None:
+            lines.append(f"ground truth against the gyro: {check.words()}")
     return lines
