@@ -205,13 +205,13 @@ def gyro_agreement(drive: InertialDrive, truth: InertialTruth,
     R = np.asarray(truth.truth.poses)[:, :3, :3]
     period = float(np.median(np.diff(drive.timestamps)))
     lag = max(1, int(round(interval_s / period)))
-    step = np.flatnonzero(np.diff(frames) == 1)  # truth at both ends of frame interval k
+    imu = drive.imu
+    t = drive.timestamps[frames]
+    # frame intervals k with the truth at both ends and the IMU over all of it
+    step = np.flatnonzero((np.diff(frames) == 1) & (t[:-1] >= imu.time[0]) & (t[1:] <= imu.time[-1]))
     if step.size < lag + 1:
         return None
-    t = drive.timestamps[frames]
-    imu = drive.imu
     turn = np.zeros((frames.size - 1, 3))  # the gyro's rotation vector over each interval
-    exact = Rotation.identity(frames.size - 1)
     dts = np.diff(t)
     for k in step:
         piece = Rotation.identity()

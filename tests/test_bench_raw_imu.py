@@ -193,6 +193,11 @@ def test_gyro_agreement_tells_a_truth_that_turns_away_from_its_gyro(drives, caps
         truth.truth, frames=truth.truth.frames[:10], poses=truth.truth.poses[:10],
         times=truth.truth.times[:10]), gyro_bias=truth.gyro_bias[:10])
     assert gyro_agreement(drive, short) is None
+    # an IMU that starts after the first frame: only the intervals it covers are read
+    late = dataclasses.replace(drive, imu=dataclasses.replace(
+        drive.imu, time=drive.imu.time[100:], gyro=drive.imu.gyro[100:], accel=drive.imu.accel[100:]))
+    cut = gyro_agreement(late, truth)
+    assert cut.pairs < own.pairs and 0.5 < cut.ratio < 2.0
     # vislam inspect prints the same figures
     assert main(["inspect", str(path)]) == 0
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("ground truth against the gyro"))
