@@ -19,9 +19,11 @@ float. Conventions are today's: ``cam_T_imu`` takes IMU-frame points to the came
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from vislam.ekf.errors import InputError
 from vislam.ekf.filter import ImuSamples
 from vislam.ekf.geometry import se3_inv
 from vislam.ekf.sequence import Observations
@@ -132,3 +134,47 @@ class InertialDrive:
         a = max(int(np.searchsorted(self.imu.time, t0, side="right")) - 1, 0)
         b = int(np.searchsorted(self.imu.time, t1, side="right"))
         return ImuSamples(self.imu.time[a:b], self.imu.accel[a:b], self.imu.gyro[a:b])
+
+
+def with_frames(drive: InertialDrive, frames: np.ndarray) -> InertialDrive:
+    """``drive`` with the camera frames ``frames`` (ascending indices) only: their stamps and
+    observations, the IMU and everything else unchanged."""
+    frames = np.asarray(frames, dtype=np.int64)
+    obs = drive.obs
+    slot = np.full(drive.n_frames, -1, dtype=np.int64)
+    slot[frames] = np.arange(frames.size)
+    f = slot[obs.frame_index]
+    keep = f >= 0
+    sub = Observations.from_rows(f[keep], obs.track[keep], obs.z[keep], int(frames.size))
+    return dataclasses.replace(drive, timestamps=np.asarray(drive.timestamps)[frames], obs=sub)
+
+
+def imu_on_camera_clock(drive: InertialDrive, offset: float) -> tuple[InertialDrive, int, int]:
+    """``drive`` with its IMU stamps moved onto the camera's clock, for an IMU whose stamps are
+    ``offset`` s late against the camera's (the model key ``imu_time_offset``: a sample stamped
+    ``t`` holds the motion at camera time ``t - offset``), and the number of camera frames
+    dropped at the start and at the end because the moved IMU no longer covers them.
+
+    Every raw-IMU estimator integrates the samples between camera frames by their stamps, so
+    this is how each of them applies the offset. The time origin moves with the IMU's first
+    sample (it stays ``time_origin_ns`` + the stamp, absolute camera times unchanged).
+    InputError for an offset that is not finite or leaves fewer than two frames."""
+    d = float(offset)
+    if not np.isfinite(d):
+        raise InputError(f"{drive.name}: imu_time_offset {offset!r} is not a finite number of seconds")
+    if d == 0.0:
+        return drive, 0, 0
+    t_imu = np.asarray(drive.imu.time, dtype=float) - d
+    t = np.asarray(drive.timestamps, dtype=float)
+    covered = (t >= t_imu[0]) & (t <= t_imu[-1])
+    frames = np.flatnonzero(covered)
+    if frames.size < 2:
+        raise InputError(f"{drive.name}: imu_time_offset {d:g} s moves the IMU off all but "
+                         f"{frames.size} of the {t.size} camera frames")
+    head, tail = int(frames[0]), int(t.size - 1 - frames[-1])
+    shift_ns = int(round(t_imu[0] * 1e9))
+    origin = shift_ns * 1e-9
+    moved = with_frames(drive, frames)
+    imu = ImuSamples(t_imu - origin, drive.imu.accel, drive.imu.gyro)
+    return (dataclasses.replace(moved, imu=imu, timestamps=moved.timestamps - origin,
+                                time_origin_ns=int(drive.time_origin_ns) + shift_ns), head, tail)

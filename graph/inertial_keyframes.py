@@ -18,12 +18,9 @@ is :func:`graph.inertial_smoother.keyframe_solve`.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
-from vislam.ekf.inertial import InertialDrive
-from vislam.ekf.sequence import Observations
+from vislam.ekf.inertial import InertialDrive, with_frames
 
 
 def keyframes(n_frames: int, stride: int) -> np.ndarray:
@@ -36,10 +33,4 @@ def keyframes(n_frames: int, stride: int) -> np.ndarray:
 def keyframe_drive(drive: InertialDrive, frames: np.ndarray) -> InertialDrive:
     """``drive`` with the camera frames ``frames`` only (their stamps and observations; the IMU
     and everything else unchanged)."""
-    obs = drive.obs
-    slot = np.full(drive.n_frames, -1, dtype=np.int64)
-    slot[frames] = np.arange(frames.size)
-    f = slot[obs.frame_index]
-    keep = f >= 0
-    sub = Observations.from_rows(f[keep], obs.track[keep], obs.z[keep], int(frames.size))
-    return dataclasses.replace(drive, timestamps=np.asarray(drive.timestamps)[frames], obs=sub)
+    return with_frames(drive, frames)
