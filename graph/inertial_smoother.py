@@ -680,6 +680,19 @@ def initial_solve(problem: InertialProblem) -> Solution:
     return incremental_solve(dataclasses.replace(problem, return_gap=s.init_return_gap))
 
 
+def robust_initial_solve(problem: InertialProblem) -> tuple[InertialProblem, Solution]:
+    """:func:`initial_solve`, again with QR factorisation when Cholesky finds the system
+    indeterminate (as :func:`smooth` does), and the problem it was solved with."""
+    try:
+        return problem, initial_solve(problem)
+    except EstimationError as exc:
+        if problem.settings.isam_factorization != "cholesky" or "indeterminate" not in str(exc):
+            raise
+        problem = dataclasses.replace(problem, settings=dataclasses.replace(
+            problem.settings, isam_factorization="qr"))
+        return problem, initial_solve(problem)
+
+
 def _states_only(values: gtsam.Values, n_frames: int) -> gtsam.Values:
     out = gtsam.Values()
     for k in range(n_frames):
