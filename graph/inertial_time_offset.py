@@ -138,15 +138,26 @@ class _Profile:
         return np.array(sorted((d, c) for d, (c, _) in self.solved.items()), dtype=float).reshape(-1, 2)
 
 
+def _profile_frames(drive: InertialDrive) -> np.ndarray:
+    t, ti = np.asarray(drive.timestamps), drive.imu.time
+    return np.flatnonzero((t >= ti[0] + SEARCH_LIMIT) & (t <= ti[-1] - SEARCH_LIMIT))
+
+
+def too_short(drive: InertialDrive) -> str | None:
+    """Why ``drive`` is too short for the search (None when it is not)."""
+    n = int(_profile_frames(drive).size)
+    if n >= MIN_FRAMES:
+        return None
+    return (f"{drive.name}: {n} camera frames lie more than {SEARCH_LIMIT:g} s inside the IMU's "
+            f"span; the time offset needs {MIN_FRAMES} or more")
+
+
 def profile_drive(drive: InertialDrive) -> InertialDrive:
     """The frames that every offset within the search limit keeps covered by the IMU."""
-    t, ti = np.asarray(drive.timestamps), drive.imu.time
-    frames = np.flatnonzero((t >= ti[0] + SEARCH_LIMIT) & (t <= ti[-1] - SEARCH_LIMIT))
-    if frames.size < MIN_FRAMES:
-        raise InputError(f"{drive.name}: {frames.size} camera frames lie more than "
-                         f"{SEARCH_LIMIT:g} s inside the IMU's span; the time offset needs "
-                         f"{MIN_FRAMES} or more")
-    return with_frames(drive, frames)
+    why = too_short(drive)
+    if why is not None:
+        raise InputError(why)
+    return with_frames(drive, _profile_frames(drive))
 
 
 def _bracket(cost) -> tuple[float, float, float]:

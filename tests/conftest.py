@@ -101,6 +101,7 @@ UNIT_SECONDS = {
     "tests/test_extrinsic.py": 161,
     "tests/regression/test_accuracy_identified.py": 122,
     "tests/test_time_offset.py": 110,
+    "tests/regression/test_inertial_time_offset.py": 110,
     "tests/test_motion_correlation.py": 87,
     "tests/regression/test_accuracy_0027.py": 75,  # with tests/test_ekf_estimators.py
     "tests/test_robust_estimators.py": 42,

@@ -59,7 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="identify the camera-IMU extrinsic (default) or keep the file's")
     parser.add_argument("--time-offsets", action="store_true",
                         help="also estimate the velocity and gyro streams' time offsets against "
-                             "the camera (off by default; vislam bench does not: docs/estimators.md)")
+                             "the camera (off by default; vislam bench does not: docs/estimators.md; "
+                             "a raw-IMU drive's camera-IMU offset is always estimated)")
     add_filter_arguments(parser)
 
 

@@ -1,5 +1,14 @@
-"""`vislam calibrate FILE` on a raw-IMU drive: the IMU's noise densities and bias random walks
-and the pixel sigma by EM around the raw-IMU smoother (:mod:`graph.inertial_identification`).
+"""`vislam calibrate FILE` on a raw-IMU drive: the camera-IMU time offset by maximum likelihood
+around the raw-IMU smoother (:mod:`graph.inertial_time_offset`), then the IMU's noise densities
+and bias random walks and the pixel sigma by EM around it (:mod:`graph.inertial_identification`)
+on the drive with the offset applied, then the offset again under the identified figures.
+
+The offset comes first because an IMU misplaced in time makes its factors' residuals look like
+noise, which EM would read as a noisier IMU; it is checked again under the identified figures
+(the first one's sigma is that of the data sheet's figures; skipped when the figures written
+are the sheet's) and the two add up. An offset the
+BIC does not support stays zero. The report gives the estimate, its sigma, the likelihood ratio
+against zero and the decision for each pass, and the total.
 
 Prints the data sheet's figures (the file's ``imu_noise``) beside the identified ones, with each
 one's standard deviation and the ratio, the figures the drive cannot determine (kept at the
@@ -10,7 +19,9 @@ settle (still moving at its last step) and, when the smoother does not find the 
 model's solution from its own initial values, every figure, keeps the sheet's value in what is
 written (``ImuNoiseFit.usable``, :mod:`graph.inertial_identification`), named with the reason.
 
-``--out DRIVE.npz`` writes the drive again with the usable figures as its ``imu_noise``: the
+``--out DRIVE.npz`` writes the drive again with the usable figures as its ``imu_noise`` and its
+IMU stamps moved onto the camera's clock by the kept offset (:func:`ekf.inertial.
+imu_on_camera_clock`; camera frames the moved IMU no longer covers are dropped, and said): the
 raw-IMU estimators (the smoother, the EKFs, dead reckoning) read the IMU noise from the drive
 file, and the ``[model]`` table of ``--config`` holds velocity-drive settings only, so that is
 the route a raw-IMU model has. The pixel sigma is printed, not written (the drive file has no
@@ -56,8 +67,10 @@ def check_out(out: Path, force: bool) -> None:
 def run_raw_imu(args: argparse.Namespace) -> int:
     """The command on a raw-IMU drive (module docstring)."""
     from vislam.ekf.errors import InputError
+    from vislam.ekf.inertial import imu_on_camera_clock
     from vislam.eval.inertial_files import load_inertial_drive, save_inertial_drive
     from vislam.graph.inertial_identification import identify_imu_noise, with_noise
+    from vislam.graph.inertial_time_offset import identify_imu_time_offset, too_short
 
     if not 1 <= args.max_iterations <= 1000:
         raise InputError(f"--max-iterations must be between 1 and 1000, got {args.max_iterations}")
@@ -65,14 +78,47 @@ def run_raw_imu(args: argparse.Namespace) -> int:
     if out is not None:
         check_out(out, args.force)
     drive = load_inertial_drive(args.file)
-    fit = identify_imu_noise(drive, max_iterations=args.max_iterations)
+    short = too_short(drive)
+    first = identify_imu_time_offset(drive) if short is None else None
+    moved, head, tail = imu_on_camera_clock(drive, first.offset if first is not None else 0.0)
+    fit = identify_imu_noise(moved, max_iterations=args.max_iterations)
+    # again under the figures written, when they are not the sheet's that the first pass used
+    second = (identify_imu_time_offset(with_noise(moved, fit.usable))
+              if first is not None and fit.usable is not None
+              and fit.usable != drive.calibration.noise else None)
+    total = (first.offset if first is not None else 0.0) + (second.offset if second is not None else 0.0)
+    if second is not None and second.offset:
+        moved, head, tail = imu_on_camera_clock(drive, total)
     print(report(drive.name, drive.n_frames, fit))
+    print(offset_report(first, second, total, head, tail) if first is not None else
+          f"\ncamera-IMU time offset: not estimated ({short}); none applied")
     if out is not None:
-        save_inertial_drive(out, with_noise(drive, fit.usable))
+        save_inertial_drive(out, with_noise(moved, fit.usable))
         kept = fit.withheld + fit.undetermined
         print(f"wrote {out} (the drive with the identified imu_noise"
-              + (f"; the sheet's for {', '.join(kept)}" if kept else "") + ")", file=sys.stderr)
+              + (f"; the sheet's for {', '.join(kept)}" if kept else "")
+              + (f"; its IMU stamps moved by {-1e3 * total:+.2f} ms onto the camera's clock"
+                 if total else "") + ")", file=sys.stderr)
     return 0
+
+
+def offset_report(first, second, total: float, head: int, tail: int) -> str:
+    """The camera-IMU time offset's lines: each pass, the total, and the frames it drops."""
+    lines = ["", "camera-IMU time offset (imu_time_offset, positive: the IMU's stamps late "
+             "against the camera's), by maximum likelihood around the raw-IMU smoother:",
+             f"- under the data sheet's figures ({first.frames_used} frames, "
+             f"{first.seconds:.1f} s): {first.words()}"]
+    if second is not None:
+        lines.append(f"- again under the identified figures written ({second.seconds:.1f} s): "
+                     f"{second.words()}")
+    if total:
+        dropped = (f"; {head} frame(s) at the start and {tail} at the end fall outside the moved "
+                   "IMU and are left out" if head or tail else "")
+        lines.append(f"applied: {1e3 * total:+.2f} ms (the IMU's stamps moved onto the camera's "
+                     f"clock in what is written{dropped})")
+    else:
+        lines.append("applied: none (the data do not support an offset)")
+    return "\n".join(lines)
 
 
 def verdict(fit) -> str:
