@@ -159,16 +159,21 @@ def held_pieces(time: np.ndarray, t0: float, t1: float) -> list[tuple[int, float
     """The scheme's pieces of ``[t0, t1]``: ``(j, dt)`` for each sample ``j`` held from
     ``max(t_j, t0)`` until ``min(t_j+1, t1)`` (the last one until ``t1``), pieces of zero
     length left out. The rule of every raw-IMU estimator: this integration and the smoother's
-    preintegration (:func:`graph.inertial_factors.preintegrate`). EstimationError when no sample
-    is at or before ``t0``."""
+    preintegration (:func:`graph.inertial_factors.preintegrate`). Only the samples from the last
+    one at or before ``t0`` to the last one before ``t1`` are read (two binary searches), so a
+    whole drive's stream may be passed for each interval. EstimationError when no sample is at
+    or before ``t0``."""
     time = np.asarray(time, dtype=float)
     if time.size == 0 or time[0] > t0:
         first = "none" if time.size == 0 else f"the first at {time[0]:.6f} s"
         raise EstimationError(f"strapdown: no IMU sample at or before t={t0:.6f} s ({first})")
-    ends = np.append(time[1:], t1)
+    lo = int(np.searchsorted(time, t0, side="right")) - 1
+    hi = max(int(np.searchsorted(time, t1, side="left")), lo + 1)
+    last = time.size - 1
     pieces = []
-    for j in range(time.size):
-        dt = float(min(ends[j], t1) - max(time[j], t0))
+    for j in range(lo, hi):
+        end = time[j + 1] if j < last else t1
+        dt = float(min(end, t1) - max(time[j], t0))
         if dt > 0:
             pieces.append((j, dt))
     return pieces

@@ -215,7 +215,7 @@ def gyro_agreement(drive: InertialDrive, truth: InertialTruth,
     dts = np.diff(t)
     for k in step:
         piece = Rotation.identity()
-        for j, dt in _pieces(imu.time, t[k], t[k + 1]):
+        for j, dt in held_pieces(imu.time, t[k], t[k + 1]):
             piece = piece * Rotation.from_rotvec(imu.gyro[j] * dt)
         turn[k] = piece.as_rotvec()
     truth_rel = Rotation.from_matrix(np.einsum("nji,njk->nik", R[:-1], R[1:]))
@@ -244,11 +244,3 @@ def gyro_agreement(drive: InertialDrive, truth: InertialTruth,
     return GyroAgreement(float(T), int(e.shape[0]), tuple(float(x) for x in np.sqrt(np.mean(e * e, axis=0))),
                          sheet, truth.gyro_bias is not None)
 
-
-def _pieces(time: np.ndarray, t0: float, t1: float) -> list[tuple[int, float]]:
-    """:func:`ekf.strapdown.held_pieces` of ``[t0, t1]`` (the same pieces), reading only the
-    samples around the interval."""
-    lo = max(int(np.searchsorted(time, t0, "right")) - 1, 0)
-    hi = int(np.searchsorted(time, t1, "left"))
-    return [(lo + j, dt) for j, dt in held_pieces(time[lo:hi + 1] if hi + 1 <= time.size else time[lo:],
-                                                   t0, t1)]

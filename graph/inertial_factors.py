@@ -64,11 +64,8 @@ def interval_pieces(imu: ImuSamples, t0: float, t1: float
     """``(accel (n, 3), gyro (n, 3), dt (n,))``: the pieces of ``[t0, t1]`` to integrate, each
     sample held until the next one (:func:`ekf.strapdown.held_pieces`, the rule of every raw-IMU
     estimator; module docstring). EstimationError when no sample is at or before ``t0``."""
-    t = np.asarray(imu.time, dtype=float)
-    a = max(int(np.searchsorted(t, t0, side="right")) - 1, 0)
-    b = max(int(np.searchsorted(t, t1, side="left")), a + 1)
-    pieces = held_pieces(t[a:b], t0, t1)
-    index = a + np.array([j for j, _ in pieces], dtype=np.int64)
+    pieces = held_pieces(imu.time, t0, t1)
+    index = np.array([j for j, _ in pieces], dtype=np.int64)
     dt = np.array([d for _, d in pieces], dtype=float)
     return imu.accel[index], imu.gyro[index], dt
 

@@ -151,3 +151,26 @@ def test_mean_matches_gtsam_preintegration():
     np.testing.assert_allclose(pred.velocity(), s.v, atol=1e-5)
     # and the motion is far larger than the tolerance
     assert np.linalg.norm(so3_log(s0.R.T @ s.R)) > 0.01 and np.linalg.norm(s.p - s0.p) > 0.1
+
+
+def _held_pieces_by_definition(time, t0, t1):
+    """Every sample held from max(t_j, t0) to min(t_j+1, t1), the last until t1: the rule
+    written out over the whole stream, without the binary searches."""
+    ends = np.append(time[1:], t1)
+    return [(j, float(min(ends[j], t1) - max(time[j], t0))) for j in range(time.size)
+            if min(ends[j], t1) - max(time[j], t0) > 0]
+
+
+def test_held_pieces_reads_only_the_interval_and_gives_the_rules_pieces():
+    from vislam.ekf.errors import EstimationError
+    from vislam.ekf.strapdown import held_pieces
+
+    rng = np.random.default_rng(3)
+    time = np.cumsum(rng.uniform(0.004, 0.006, 400))
+    for t0, t1 in [(time[10], time[20]), (time[10] + 1e-4, time[20] - 1e-4), (time[0], time[1]),
+                   (time[-3] + 1e-4, time[-1] + 0.02), (time[5] + 1e-5, time[5] + 2e-5),
+                   (time[-1], time[-1] + 0.01)] + [tuple(np.sort(rng.uniform(time[0], time[-1] + 0.01, 2)))
+                                                    for _ in range(50)]:
+        assert held_pieces(time, t0, t1) == _held_pieces_by_definition(time, t0, t1)
+    with pytest.raises(EstimationError, match="no IMU sample at or before"):
+        held_pieces(time, time[0] - 1e-3, time[3])
