@@ -157,8 +157,8 @@ def imu_on_camera_clock(drive: InertialDrive, offset: float) -> tuple[InertialDr
 
     Every raw-IMU estimator integrates the samples between camera frames by their stamps, so
     this is how each of them applies the offset. The time origin moves with the IMU's first
-    sample (it stays ``time_origin_ns`` + the stamp, absolute camera times unchanged).
-    InputError for an offset that is not finite or leaves fewer than two frames."""
+    sample (it stays ``time_origin_ns`` + the stamp, absolute camera times unchanged), and the
+    drive's ``source`` says what was moved. InputError for an offset that is not finite or leaves fewer than two frames."""
     d = float(offset)
     if not np.isfinite(d):
         raise InputError(f"{drive.name}: imu_time_offset {offset!r} is not a finite number of seconds")
@@ -176,5 +176,8 @@ def imu_on_camera_clock(drive: InertialDrive, offset: float) -> tuple[InertialDr
     origin = shift_ns * 1e-9
     moved = with_frames(drive, frames)
     imu = ImuSamples(t_imu - origin, drive.imu.accel, drive.imu.gyro)
+    note = f"IMU stamps moved {-1e3 * d:+.4g} ms onto the camera's clock (imu_time_offset {d:.6g} s)"
+    source = f"{drive.source}; {note}" if drive.source else note
     return (dataclasses.replace(moved, imu=imu, timestamps=moved.timestamps - origin,
-                                time_origin_ns=int(drive.time_origin_ns) + shift_ns), head, tail)
+                                time_origin_ns=int(drive.time_origin_ns) + shift_ns, source=source),
+            head, tail)

@@ -57,6 +57,7 @@ def test_moving_the_stamps_by_the_offset_gives_the_imu_of_a_drive_without_one(of
     np.testing.assert_allclose(_absolute(moved, moved.timestamps), _absolute(late, late.timestamps[kept]),
                                atol=2e-9)
     assert moved.imu.time[0] == 0.0
+    assert moved.source.startswith(late.source) and f"imu_time_offset {offset:g} s" in moved.source
     # the observations follow their frames
     np.testing.assert_array_equal(moved.obs.z, with_frames(late, kept).obs.z)
 

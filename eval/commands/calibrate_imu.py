@@ -117,7 +117,7 @@ def offset_report(first, second, total: float, head: int, tail: int) -> str:
         lines.append(f"applied: {1e3 * total:+.2f} ms (the IMU's stamps moved onto the camera's "
                      f"clock in what is written{dropped})")
     else:
-        lines.append("applied: none (the data do not support an offset)")
+        lines.append("applied: none")
     return "\n".join(lines)
 
 
