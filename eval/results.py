@@ -30,6 +30,7 @@ import numpy as np
 
 from vislam.ekf.errors import InputError
 from vislam.eval.drive_data import DriveData, read_drive_data
+from vislam.eval.inertial_truth import GyroAgreement
 # DriveRpe, ErrorStats and SegmentLengthRpe are the types of EstimatorResult.rpe_drive, read here
 from vislam.eval.results_rpe import DriveRpe, ErrorStats, SegmentLengthRpe, drive_rpe_of  # noqa: F401
 from vislam.eval.json_reading import (
@@ -145,6 +146,9 @@ class DriveResult:
     #: how the drive was made (settings.json's entry: ``simulation`` settings, ``path``,
     #: ``filter`` under its model); empty without settings.json
     settings: dict = field(default_factory=dict)
+    #: a raw-IMU drive's ground truth against its gyro (results.json's ``truth_check``:
+    #: :class:`eval.inertial_truth.GyroAgreement`); None where bench made none
+    truth_check: GyroAgreement | None = None
 
     @property
     def simulation(self) -> dict | None:
@@ -345,6 +349,21 @@ def _estimator(r: dict, w: str, folder: Path) -> EstimatorResult:
         **figures)
 
 
+def _truth_check(value, where: str) -> GyroAgreement | None:
+    """results.json's ``truth_check`` of one drive (None: none made)."""
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise InputError(f"{where}: expected an object or null, got {short(value)}")
+    try:
+        check = GyroAgreement.from_dict(value)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{where}: not a truth check as vislam bench writes it ({exc!r})") from None
+    if len(check.rms_mrad) != 3 or not np.all(np.isfinite((*check.rms_mrad, check.sheet_mrad))):
+        raise InputError(f"{where}: rms_mrad must be three finite numbers and sheet_mrad finite")
+    return check
+
+
 def bench_results(data, path: Path, settings: dict | None = None) -> BenchResults:
     """The :class:`BenchResults` of results.json's content ``data`` (read from ``path``)."""
     if not isinstance(data, dict):
@@ -374,7 +393,8 @@ def bench_results(data, path: Path, settings: dict | None = None) -> BenchResult
             model=model if isinstance(model, dict) else None,
             reference_smoother=text_or_none(s.get("reference_smoother"),
                                      f"{where}.reference_smoother"),
-            estimators=ests, settings=entries.get(name, {}))
+            estimators=ests, settings=entries.get(name, {}),
+            truth_check=_truth_check(s.get("truth_check"), f"{where}.truth_check"))
     names = data.get("estimators")
     names = [n for n in names if isinstance(n, str)] if isinstance(names, list) else []
     return BenchResults(

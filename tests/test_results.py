@@ -268,3 +268,20 @@ def test_a_real_bench_folder_loads_its_estimates_and_its_drive(tmp_path):
     t, poses = vislam.read_tum(drive.estimators["smoother"].trajectory_path)
     np.testing.assert_allclose(poses[:, :3, 3],
                                drive.estimators["smoother"].load_estimate().positions, atol=1e-6)
+
+
+def test_a_raw_imu_drives_truth_check_reads_as_its_typed_object(tmp_path):
+    from vislam.eval.inertial_truth import GyroAgreement
+
+    check = GyroAgreement(1.0, 581, (1.22, 1.10, 1.64), 0.17, True)
+    data = _bench(_row("e"))
+    data["sequences"][0]["truth_check"] = check.to_dict()
+    drive = load_results(_write(tmp_path / "a", results_json=data)).bench.drives["drive"]
+    assert drive.truth_check == check and drive.truth_check.ratio == pytest.approx(check.ratio)
+    data["sequences"][0]["truth_check"] = None
+    assert load_results(_write(tmp_path / "b", results_json=data)).bench.drives["drive"].truth_check is None
+    for bad in ({"pairs": 3}, [1, 2], dict(check.to_dict(), rms_mrad=[1.0, "x", 2.0]),
+                dict(check.to_dict(), rms_mrad=[1.0, 2.0])):
+        data["sequences"][0]["truth_check"] = bad
+        with pytest.raises(InputError, match=r"sequences\[0\].*truth_check"):
+            load_results(_write(tmp_path / "c", results_json=data))
