@@ -6,7 +6,11 @@ sample in which a vehicle's engine or rotor vibration averages out (EuRoC V1_01'
 the ground for its first ~4 s with its motors running: the raw accelerometer's standard deviation
 is 1.3 m/s^2 there, its 0.1 s means move by 0.2 m/s^2 at most). The rest is the longest run of
 blocks from the start whose means all stay within ``gyro_tol`` (rad/s) and ``accel_tol`` (m/s^2)
-of the mean over the run so far, per axis; it must last ``min_rest_s``. (A vehicle that moves at
+of the mean over the run so far, per axis, less its last ``margin_blocks`` blocks (0.4 s: a
+motion that starts slowly stays inside the tolerances for a few blocks; a simulated car eases
+away 0.3-0.4 s before its means leave them, already at 0.02-0.05 m/s, where zero velocity is
+wrong; the EKFs' detector leaves out as much, :class:`ekf.imu_init.RestConfig`); it must last
+``min_rest_s``. (A vehicle that moves at
 a constant velocity from its first sample looks the same to an IMU: its drive cannot be told
 from a rest, and the zero-velocity assumption below would be wrong.)
 
@@ -68,6 +72,10 @@ class RestDetector:
     gyro_tol: float = 0.02
     accel_tol: float = 0.3
     min_rest_s: float = 0.5
+    #: The last blocks of the run left out: a motion that starts slowly stays inside the
+    #: tolerances for a few blocks (a simulated car: 0.3-0.4 s) and zero velocity there is wrong.
+    #: 0.4 s, as the EKFs' rest detector leaves out (ekf.imu_init.RestConfig.margin_windows).
+    margin_blocks: int = 4
 
 
 def detect_rest(imu: ImuSamples, detector: RestDetector = RestDetector()) -> RestInterval | None:
@@ -95,13 +103,17 @@ def detect_rest(imu: ImuSamples, detector: RestDetector = RestDetector()) -> Res
         a_sum += a_mean[b]
         n += int(counts[b])
         last = b
+    last -= int(detector.margin_blocks)
     if last < 0:
         return None
     inside = block <= last
     t_end = float(t[inside][-1])
     if t_end - t[0] < detector.min_rest_s:
         return None
-    return RestInterval(float(t[0]), t_end, int(n), a_sum / n, g_sum / n)
+    kept = slice(0, last + 1)
+    n = int(counts[kept].sum())
+    return RestInterval(float(t[0]), t_end, n, a_mean[kept].sum(axis=0) / n,
+                        g_mean[kept].sum(axis=0) / n)
 
 
 def gravity_aligned_rotation(up: np.ndarray) -> np.ndarray:

@@ -275,7 +275,8 @@ def build_problem(drive: InertialDrive, settings: InertialSmootherSettings = Ine
             f"{ESTIMATOR}: {drive.name}: the drive cannot be initialised: no rest of at least "
             f"{settings.rest.min_rest_s:g} s at its start (0.1 s means of the gyro within "
             f"{settings.rest.gyro_tol:g} rad/s and of the accelerometer within "
-            f"{settings.rest.accel_tol:g} m/s^2), and initialisation from motion is not implemented")
+            f"{settings.rest.accel_tol:g} m/s^2, less its last {settings.rest.margin_blocks} "
+            "blocks), and initialisation from motion is not implemented")
     t = drive.timestamps
     if not rest.t_start <= t[0] <= rest.t_end:
         raise EstimationError(

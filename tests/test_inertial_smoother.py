@@ -185,11 +185,27 @@ def _rest_then_turn(rest_s: float, seed: int = 0, vibration: float = 0.5) -> Imu
 
 
 def test_rest_detector_finds_the_rest_despite_vibration():
-    rest = detect_rest(_rest_then_turn(1.5))
+    rest = detect_rest(_rest_then_turn(1.5), RestDetector(margin_blocks=0))
     assert rest is not None
     assert rest.t_start == 0.0 and 1.35 <= rest.t_end <= 1.5
+    margin = detect_rest(_rest_then_turn(1.5))  # the last 0.4 s of the run left out
+    assert margin.t_start == 0.0 and 0.95 <= margin.t_end <= 1.1
+    np.testing.assert_allclose(margin.gyro_mean, [0.002, -0.003, 0.001], atol=5e-4)
     np.testing.assert_allclose(rest.gyro_mean, [0.002, -0.003, 0.001], atol=5e-4)
     np.testing.assert_allclose(rest.up, np.array([0.3, 0.1, 0.95]) / np.linalg.norm([0.3, 0.1, 0.95]), atol=1e-2)
+
+
+def test_a_slow_start_is_not_taken_for_rest():
+    """A simulated car eases away at 2.0 s: its 0.1 s means stay inside the tolerances until
+    about 2.4 s, when it already moves at 0.04-0.05 m/s; the margin ends the rest before the car
+    moves (zero velocity there would be wrong)."""
+    from vislam.eval.imu_sim import simulate_imu
+    from vislam.eval.imu_sim_config import ImuSimConfig
+
+    for seed in (3, 4):
+        drive, truth = simulate_imu(ImuSimConfig(scenario="road", n_frames=61, seed=seed))
+        assert detect_rest(drive.imu, RestDetector(margin_blocks=0)).t_end > truth.motion_start_s + 0.2
+        assert detect_rest(drive.imu).t_end <= truth.motion_start_s
 
 
 def test_no_rest_means_no_initialisation():
