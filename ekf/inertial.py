@@ -158,7 +158,8 @@ def imu_on_camera_clock(drive: InertialDrive, offset: float) -> tuple[InertialDr
     Every raw-IMU estimator integrates the samples between camera frames by their stamps, so
     this is how each of them applies the offset. The time origin moves with the IMU's first
     sample (it stays ``time_origin_ns`` + the stamp, absolute camera times unchanged), and the
-    drive's ``source`` says what was moved. InputError for an offset that is not finite or leaves fewer than two frames."""
+    drive's ``source`` says what was moved. InputError for an offset that is not finite or
+    leaves fewer than two frames."""
     d = float(offset)
     if not np.isfinite(d):
         raise InputError(f"{drive.name}: imu_time_offset {offset!r} is not a finite number of seconds")

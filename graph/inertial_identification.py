@@ -305,15 +305,15 @@ def _solve(problem: InertialProblem, previous):
     EuRoC V1_01 with its IMU 2.5 ms earlier, one step's solve from the last solution under a
     gyro walk 50x the sheet's kept 15 of 216 landmarks, too few for the pixel sigma) is solved
     again from the incremental pass under the new figures."""
+    sol = None
     if previous is not None:
         try:
             sol = batch_solve(problem, previous)
-            return sol, to_result(problem, sol)
         except EstimationError:
-            previous = None
-    if previous is None:
-        problem, previous = robust_initial_solve(problem)
-    sol = batch_solve(problem, previous)
+            pass
+    if sol is None:
+        problem, initial = robust_initial_solve(problem)
+        sol = batch_solve(problem, initial)
     return sol, to_result(problem, sol)
 
 

@@ -7,7 +7,7 @@ preintegrated measurement changes (its samples, and the pieces of the first and 
 :func:`ekf.strapdown.held_pieces`: a continuous function of ``d``), and with the noise models
 fixed the negative log-likelihood of ``d``, the states and landmarks profiled out, is the
 smoother's graph error at its minimum, ``C(d) = min 1/2 sum |r|^2`` (the Huber kernel's cost
-for the pixels; the log-determinants do not depend on ``d``). So :func:`profile_cost` is one
+for the pixels; the log-determinants do not depend on ``d``). So each cost (``_Profile.cost``) is one
 Levenberg-Marquardt solve of the smoother's batch graph with the IMU factors preintegrated
 again, warm-started from the solution at the nearest offset already tried; the pixel sigma,
 the landmarks and the outlier set are those of one batch solve at ``d = 0``
@@ -122,8 +122,7 @@ class _Profile:
             return self.solved[d][0]
         nearest = min(self.solved, key=lambda x: abs(x - d)) if self.solved else None
         start = self.solution.values if nearest is None else self.solved[nearest][1]
-        drive = dataclasses.replace(self.drive, imu=ImuSamples(
-            self.drive.imu.time - d, self.drive.imu.accel, self.drive.imu.gyro))
+        drive = _stamps_moved(self.drive, d)
         t = drive.timestamps
         pims = [preintegrate(drive.imu, float(t[k - 1]), float(t[k]), self.params, self.problem.bias0)
                 for k in range(1, t.size)]
@@ -136,6 +135,13 @@ class _Profile:
 
     def table(self) -> np.ndarray:
         return np.array(sorted((d, c) for d, (c, _) in self.solved.items()), dtype=float).reshape(-1, 2)
+
+
+def _stamps_moved(drive: InertialDrive, d: float) -> InertialDrive:
+    """``drive`` with its IMU's stamps earlier by ``d`` (its frames and time origin as they are:
+    the search's cut drive keeps every frame covered for ``|d|`` up to the limit)."""
+    imu = drive.imu
+    return dataclasses.replace(drive, imu=ImuSamples(imu.time - d, imu.accel, imu.gyro))
 
 
 def _profile_frames(drive: InertialDrive) -> np.ndarray:
@@ -185,9 +191,7 @@ def identify_imu_time_offset(drive: InertialDrive,
     first = _profile_round(cut, settings)
     fit = first
     if first.kept:  # again about the estimate: its own outlier set and pixel sigma
-        moved = dataclasses.replace(cut, imu=ImuSamples(cut.imu.time - first.estimate,
-                                                         cut.imu.accel, cut.imu.gyro))
-        second = _profile_round(moved, settings)
+        second = _profile_round(_stamps_moved(cut, first.estimate), settings)
         if not second.at_limit:
             fit = dataclasses.replace(second, estimate=first.estimate + second.estimate,
                                       profile=first.profile, statistic=first.statistic)
