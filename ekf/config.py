@@ -68,6 +68,13 @@ TRIANGULATIONS = ("linear", "unscented")
 #: into world x, y, z once Civera's linearity index falls below ``inverse_depth_linearity``).
 LANDMARK_PARAMETERISATIONS = ("euclidean", "inverse-depth")
 
+#: How ekf-joint reads a track's pixel errors, which a feature tracker correlates from frame to
+#: frame (graph/track_correlation.py): "long-run", every row independent with ``pixel_sigma``
+#: (the long-run sigma; what every estimator does), or "ar1", the errors as AR(1) along the
+#: track with coefficient ``pixel_ar1``, whitened exactly by differencing each row against the
+#: track's previous one (ekf/joint.py, "Pixel errors as AR(1)").
+PIXEL_READINGS = ("long-run", "ar1")
+
 #: Smallest standard deviation accepted: its square (1e-24) is still a normal positive float.
 SIGMA_MIN = 1e-12
 #: Words that switch the chi-square gate off (``gate_probability``), in a file or a flag.
@@ -222,6 +229,8 @@ FILTER_RULES: dict[str, Rule] = {
     "triangulation": Rule("choice", choices=TRIANGULATIONS),
     "landmark_parameterisation": Rule("choice", choices=LANDMARK_PARAMETERISATIONS),
     "inverse_depth_linearity": Rule("float", 0.0, 1e3),  # dimensionless; 0: never convert
+    "pixel_reading": Rule("choice", choices=PIXEL_READINGS),
+    "pixel_ar1": Rule("float", 0.0, 1.0, hi_open=True),  # correlation of consecutive pixel errors
     "blas_threads": Rule("int", 1, 1024),
 }
 
@@ -319,6 +328,16 @@ class FilterConfig:
     #: An inverse-depth landmark becomes Euclidean once Civera's linearity index
     #: ``4 sigma_d |cos alpha| / d`` is below this (0: never).
     inverse_depth_linearity: float = 0.1
+    #: How ekf-joint reads the pixel errors along a track (PIXEL_READINGS): "long-run", every
+    #: row independent with ``pixel_sigma`` (every estimator's reading), or "ar1", exact AR(1)
+    #: whitening by differencing each row against the track's previous one; ``pixel_sigma`` is
+    #: the long-run sigma either way, so that under "ar1" a row's own sigma is ``pixel_sigma
+    #: sqrt((1 - a) / (1 + a))``. Other estimators read "long-run" whatever this says.
+    pixel_reading: str = "long-run"
+    #: The correlation ``a`` of a track's consecutive pixel errors (0: none; read by
+    #: ``pixel_reading = "ar1"``); an identified model sets it from its correlation time tau,
+    #: ``a = (tau - 1) / (tau + 1)`` (ekf.model.model_config).
+    pixel_ar1: float = 0.0
     #: Threads BLAS may use in the hot loop (1: small matrices run fastest single-threaded).
     blas_threads: int = 1
 

@@ -23,6 +23,25 @@
   ended track's landmark keeps being refined through its cross-covariance with the pose. Its
   rows are kept exactly, and cheaply, by :class:`ekf.kept_landmarks.KeptLandmarks`;
   ``run_joint(..., textbook=True)`` runs the dense ``O(n^2)`` form instead (the reference).
+
+**Pixel errors as AR(1)** (``config.pixel_reading = "ar1"``). A feature tracker's pixel error
+drifts along a track: ``e_k = a e_(k-1) + w_k`` with ``a = config.pixel_ar1``, marginal sigma
+``s = pixel_sigma sqrt((1 - a) / (1 + a))`` (``pixel_sigma`` is the long-run sigma) and
+innovation ``w_k`` of sigma ``s sqrt(1 - a^2)``, independent of every earlier error. Read as
+independent rows of sigma ``s`` such errors make the filter overconfident; of the long-run
+sigma, too wide for the frame-to-frame motion. The exact reading (Bryson and Henrikson's
+measurement differencing, in the stochastic-cloning form of Roumeliotis and Burdick 2002):
+the state carries a clone ``c`` of the previous frame's pose (6 more core rows, ``P``'s copy
+of the pose's rows made at each prediction, held fixed by it), a track's first row (and any row
+whose previous one was not accepted in the previous frame) is read as it is with ``s``, and
+every later row as
+
+    y_k = z_k - a z_(k-1) = h(U_k, m) - a h(U_c, m) + w_k,   R = (1 - a^2) R3,
+
+with Jacobians ``[H_U(U_k), -a H_U(U_c), H_m(U_k) - a H_m(U_c)]`` on pose, clone and landmark.
+The rows' noises are then independent, so the stacked update is exact for a linear model.
+Not with ``keep_landmarks`` (the kept landmarks' regression on the state would have to follow
+each clone).
 """
 
 from __future__ import annotations
@@ -32,6 +51,7 @@ from scipy.linalg.blas import dtrsm
 from scipy.linalg.lapack import dpotrf
 
 from vislam.ekf.config import FilterConfig
+from vislam.ekf.errors import InputError
 from vislam.ekf.estimate import Estimate
 from vislam.ekf.numerics import (NumericalGuard, Scratch, UpdateRejected, add_pose_rows,
                                  all_finite, finite_norm2, finite_rows)
@@ -60,7 +80,18 @@ class JointState:
     """Mean and joint covariance of ``[pose, (gyro bias), active landmarks]``."""
 
     def __init__(self, config: FilterConfig, n_tracks: int, textbook: bool = False):
-        self.core = (9 if config.gyro_bias else 6) + (1 if config.speed_scale else 0)
+        base = (9 if config.gyro_bias else 6) + (1 if config.speed_scale else 0)
+        #: AR(1) pixel errors (module docstring): their coefficient, the first row of the
+        #: previous pose's clone (None: no clone), its pose and the frame it is of.
+        self.ar1 = float(config.pixel_ar1) if config.pixel_reading == "ar1" else 0.0
+        self.clone = base if self.ar1 > 0 else None
+        if self.clone is not None and config.keep_landmarks:
+            raise InputError("setting 'pixel_reading' = \"ar1\" cannot be combined with "
+                             "'keep_landmarks' in ekf-joint (ekf/joint.py)")
+        self.core = base + (6 if self.clone is not None else 0)
+        self.Uc = np.eye(4)
+        self.frame = -1  # the frame of the last update
+        self.clone_frame = -1
         self.U = np.eye(4)
         self.bias = np.zeros(3)
         self.scale = 0.0
@@ -71,14 +102,17 @@ class JointState:
         if config.gyro_bias:
             self.P[6:9, 6:9] = config.gyro_bias_sigma**2 * np.eye(3)
         #: the speed scale's row of P (None without one)
-        self.scale_row = self.core - 1 if config.speed_scale else None
+        self.scale_row = base - 1 if config.speed_scale else None
         if config.speed_scale:
-            self.P[-1, -1] = config.speed_scale_sigma**2
+            self.P[self.scale_row, self.scale_row] = config.speed_scale_sigma**2
         self.lm_mean = np.zeros((0, 3))
         self.lm_first = np.zeros((0, 3))  # first estimates (FEJ linearisation points)
         self.linearisation = config.joint_linearisation
         self.n_numerical = 0  # observations the last update gated out for numerical reasons
         self.lm_track = np.zeros(0, dtype=np.int64)
+        # AR(1) rows: each landmark's last accepted pixels and their frame.
+        self.lm_prev_z = np.zeros((0, 4))
+        self.lm_prev_frame = np.zeros(0, dtype=np.int64)
         # Inverse-depth landmarks: which slots, and each one's anchor (world_T_camera).
         self.inverse_depth = config.landmark_parameterisation == "inverse-depth"
         self.linearity = config.inverse_depth_linearity
@@ -104,39 +138,45 @@ class JointState:
         return self.core + 3 * slots[:, None] + _AR3
 
     # --- the measurement of either kind of landmark --------------------------------------
-    def camera_points(self, model: StereoModel, slots: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """``q = cam_T_imu U m_h`` (k, 4) of landmark coordinates ``x`` (k, 3) in ``slots``."""
+    def camera_points(self, model: StereoModel, slots: np.ndarray, x: np.ndarray,
+                      U: np.ndarray | None = None) -> np.ndarray:
+        """``q = cam_T_imu U m_h`` (k, 4) of landmark coordinates ``x`` (k, 3) in ``slots``
+        (``U`` the current pose unless given)."""
+        U = self.U if U is None else U
         i = self.lm_id[slots] if self.inverse_depth else None
         if i is None or not i.any():
-            return model.camera_points(self.U, x)
+            return model.camera_points(U, x)
         q = np.empty((x.shape[0], 4))
         s = slots[i]
         m_h = idp.homogeneous_point(x[i], self.anchor_R[s], self.anchor_p[s])
-        q[i] = m_h @ (model.cam_T_imu @ self.U).T
+        q[i] = m_h @ (model.cam_T_imu @ U).T
         if not i.all():
-            q[~i] = model.camera_points(self.U, x[~i])
+            q[~i] = model.camera_points(U, x[~i])
         return q
 
-    def jacobians(self, model: StereoModel, slots, x, q):
-        """Reduced ``(H_pose (k, 3, 6), H_landmark (k, 3, 3))`` at coordinates ``x``."""
+    def jacobians(self, model: StereoModel, slots, x, q, U: np.ndarray | None = None):
+        """Reduced ``(H_pose (k, 3, 6), H_landmark (k, 3, 3))`` at coordinates ``x`` (and at
+        pose ``U``, the current one unless given)."""
+        U = self.U if U is None else U
         i = self.lm_id[slots] if self.inverse_depth else None
         if i is None or not i.any():
-            return model.jacobians(self.U, x, q, reduced=True)
+            return model.jacobians(U, x, q, reduced=True)
         s = slots[i]
         R_a, p_a = self.anchor_R[s], self.anchor_p[s]
         m_h = idp.homogeneous_point(x[i], R_a, p_a)
         G = idp.homogeneous_jacobian(R_a, p_a)
         if i.all():
-            return model.homogeneous_jacobians(self.U, m_h, G, q)
+            return model.homogeneous_jacobians(U, m_h, G, q)
         Hp, Hm = np.empty((x.shape[0], 3, 6)), np.empty((x.shape[0], 3, 3))
-        Hp[i], Hm[i] = model.homogeneous_jacobians(self.U, m_h, G, q[i])
-        Hp[~i], Hm[~i] = model.jacobians(self.U, x[~i], q[~i], reduced=True)
+        Hp[i], Hm[i] = model.homogeneous_jacobians(U, m_h, G, q[i])
+        Hp[~i], Hm[~i] = model.jacobians(U, x[~i], q[~i], reduced=True)
         return Hp, Hm
 
     # --- prediction ---------------------------------------------------------------------
     def predict(self, tau: float, u: np.ndarray, config: FilterConfig) -> None:
-        """Paper eq. 11 on the pose (and bias) block; cross-covariances follow ``Phi``."""
-        c = self.core
+        """Paper eq. 11 on the pose (and bias) block; cross-covariances follow ``Phi``. With
+        AR(1) pixels the clone first takes the pose's rows, and ``Phi`` holds it fixed."""
+        c = self.core if self.clone is None else self.clone
         if c > 6:  # the twist errors [b_g; s] where configured (ekf.prediction.error_state_transition)
             B = twist_error_matrix(u, config.gyro_bias, config.speed_scale)
             errors = np.r_[self.bias if config.gyro_bias else [], [self.scale] if config.speed_scale else []]
@@ -151,6 +191,11 @@ class JointState:
             u_c = u
             Phi = prediction_jacobian(tau, u)
             Q = process_noise(tau, self.W)
+        if self.clone is not None:
+            self.copy_pose_to_clone()
+            Phi = _block_diagonal(Phi, np.eye(6))
+            Q = _block_diagonal(Q, np.zeros((6, 6)))
+            c = self.core
         self.U = predict_mean(self.U, tau, u_c)
         P = self.P
         Pcc = Phi @ P[:c, :c] @ Phi.T + Q
@@ -160,6 +205,39 @@ class JointState:
             P[c:, :c] = P[:c, c:].T
         if self.retired is not None and self.retired.n:
             self.retired.predict(Phi, Q, P)
+
+    def copy_pose_to_clone(self) -> None:
+        """The clone becomes the current pose: its rows and columns of ``P`` the pose's."""
+        k = self.clone
+        P = self.P
+        P[k : k + 6, :] = P[:6, :]
+        P[:, k : k + 6] = P[:, :6]
+        self.Uc = self.U.copy()
+        self.clone_frame = self.frame
+
+    def differenced_rows(self, model: StereoModel, slots, m, z, m_lin):
+        """The AR(1) rows of an update (module docstring) among observations of ``slots``
+        (landmark estimates ``m``, linearisation points ``m_lin``, pixels ``z``): which rows are
+        differenced ``d`` (indices), the clone's Jacobians ``-a H_U(U_c)`` (len(d), 3, 6), the
+        landmark Jacobians' share ``-a H_m(U_c)`` (len(d), 3, 3), the previous rows' reduced and
+        4-row residuals at ``U_c`` times ``a``."""
+        d = np.flatnonzero(self.lm_prev_frame[slots] == self.clone_frame)
+        if self.clone_frame < 0 or d.size == 0:
+            return None
+        sd = slots[d]
+        qc = self.camera_points(model, sd, m[d], self.Uc)
+        ok = model.valid_predictions(qc)
+        qc_lin = qc if m_lin is None else self.camera_points(model, sd, m_lin[d], self.Uc)
+        if m_lin is not None:
+            ok &= model.valid_predictions(qc_lin)
+        d, sd, qc, qc_lin = d[ok], sd[ok], qc[ok], qc_lin[ok]
+        if d.size == 0:
+            return None
+        Hpc, Hmc = self.jacobians(model, sd, m[d] if m_lin is None else m_lin[d], qc_lin, self.Uc)
+        a = self.ar1
+        z_prev = self.lm_prev_z[sd]
+        return (d, -a * Hpc, -a * Hmc, a * model.reduced_innovation(z_prev, qc),
+                a * (z_prev - model.predicted_pixels(qc)))
 
     # --- update -------------------------------------------------------------------------
     def update(self, model: StereoModel, tracks: np.ndarray, z: np.ndarray) -> tuple[int, int]:
@@ -196,29 +274,57 @@ class JointState:
             Hp, Hm = self.jacobians(model, slots, m_lin, q_lin)
         else:
             Hp, Hm = self.jacobians(model, slots, m, q)  # (k,3,6), (k,3,3)
+        # AR(1) pixels: the differenced rows' clone columns, landmark Jacobians, residuals and
+        # noise (w: each row's pixel-noise scale, 1 - a^2 where differenced).
+        ar = None if self.clone is None else self.differenced_rows(model, slots, m, z,
+                                                                   m_lin if fej else None)
+        if ar is None:
+            Hx, pose_cols = Hp.reshape(3 * k, 6), slice(0, 6)
+        else:
+            d, Hc, Hmc, r_prev, r4_prev = ar
+            Hm = Hm.copy()
+            Hm[d] += Hmc
+            Hx3 = np.zeros((k, 3, self.core))
+            Hx3[:, :, :6] = Hp
+            Hx3[d, :, self.clone : self.clone + 6] = Hc
+            Hx, pose_cols = Hx3.reshape(3 * k, self.core), slice(0, self.core)
+            w = np.ones(k)
+            w[d] = 1.0 - self.ar1**2
         rows = self.landmark_rows(slots).ravel()  # (3k,)
-        # P H^T (N, 3k), using the sparsity of H: 6 pose columns + 3 landmark columns per row;
-        # it and S = H P H^T + I (x) R3 in reused memory (Scratch), with one spare row of B
-        # for the residual below.
+        # P H^T (N, 3k), using the sparsity of H: 6 pose columns (core ones with a clone) + 3
+        # landmark columns per row; it and S = H P H^T + I (x) R3 in reused memory (Scratch),
+        # with one spare row of B for the residual below.
         work = self.scratch
         B = work.array("B", (N + 1, 3 * k))
-        PHt = np.matmul(P[:, :6], Hp.reshape(3 * k, 6).T, out=B[:N])
+        PHt = np.matmul(P[:, pose_cols], Hx.T, out=B[:N])
         Pc = np.take(P, rows, axis=1, out=work.array("Pc", (N, 3 * k)), mode="clip")
         # += Pc_j Hm_j^T for each landmark j: one batched GEMM (np.einsum's loop took 10x longer)
         PcHm = np.matmul(Pc.reshape(N, k, 3).transpose(1, 0, 2), Hm.transpose(0, 2, 1),
                          out=work.array("PcHm", (k, N, 3)))
         PHt.reshape(N, k, 3)[...] += PcHm.transpose(1, 0, 2)
-        S = np.matmul(Hp.reshape(3 * k, 6), PHt[:6], out=work.array("S", (3 * k, 3 * k)))
+        S = np.matmul(Hx, PHt[pose_cols], out=work.array("S", (3 * k, 3 * k)))
         PHt_l = np.take(PHt, rows, axis=0, out=work.array("PHt_l", (3 * k, 3 * k)), mode="clip")
         S += np.matmul(Hm, PHt_l.reshape(k, 3, 3 * k), out=work.array("HmPHt", (k, 3, 3 * k))).reshape(
             3 * k, 3 * k
         )
-        S3_diag = S.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :] + model.R3
-        acc, self.n_numerical = model.gate_check(z, q, S3_diag)
+        if ar is None:
+            S3_diag = S.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :] + model.R3
+            acc, self.n_numerical = model.gate_check(z, q, S3_diag)
+        else:
+            R_rows = w[:, None, None] * model.R3
+            S3_diag = S.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :] + R_rows
+            r4 = z - model.predicted_pixels(q)
+            r4[d] -= r4_prev
+            acc, self.n_numerical = model.gate_innovations(r4, S3_diag, w)
         a = int(acc.sum())
         if a == 0:
             return 0, int(tracks.size)
-        r = model.reduced_innovation(z[acc], q[acc]).ravel()
+        if ar is None:
+            r = model.reduced_innovation(z[acc], q[acc]).ravel()
+        else:
+            r_all = model.reduced_innovation(z, q)
+            r_all[d] -= r_prev
+            r = r_all[acc].ravel()
         if a < k:
             sel = (3 * np.nonzero(acc)[0][:, None] + _AR3).ravel()
             S_rows = np.take(S, sel, axis=0, out=work.array("S_rows", (3 * a, 3 * k)), mode="clip")
@@ -227,7 +333,8 @@ class JointState:
             np.take(PHt, sel, axis=1, out=B_a[:N], mode="clip")
             B = B_a
         # Only the lower triangle of S is read by the Cholesky factorisation.
-        S.reshape(a, 3, a, 3)[np.arange(a), :, np.arange(a), :] += model.R3
+        S.reshape(a, 3, a, 3)[np.arange(a), :, np.arange(a), :] += (
+            model.R3 if ar is None else R_rows[acc])
         # LAPACK and BLAS directly (scipy.linalg's wrappers cost 10-15 us a call here).
         L, info = dpotrf(S, lower=1, clean=0, overwrite_a=1)
         if info != 0:
@@ -247,6 +354,9 @@ class JointState:
                 f"gain of {a} observations not finite or pose covariance not positive after it"
             )
         symmetric_downdate(P, Y, work.array("YtY", (N, N)))  # P <- P - Y^T Y = P - K S K^T
+        if self.clone is not None:  # the rows the next frame's AR(1) rows difference against
+            self.lm_prev_z[slots[acc]] = z[acc]
+            self.lm_prev_frame[slots[acc]] = self.frame
         E = se3_exp_single(dx[:6])
         U_prior = self.U
         self.U = E @ self.U  # paper eq. 14: mu <- exp((K r)^) mu
@@ -333,6 +443,8 @@ class JointState:
         self.lm_mean = np.concatenate([self.lm_mean, m])
         self.lm_first = np.concatenate([self.lm_first, m])
         self.lm_track = np.concatenate([self.lm_track, tracks[add]])
+        self.lm_prev_z = np.concatenate([self.lm_prev_z, z[add]])
+        self.lm_prev_frame = np.concatenate([self.lm_prev_frame, np.full(n, self.frame)])
         self.slot[tracks[add]] = first + np.arange(n)
         if self.inverse_depth:
             self.lm_id = np.concatenate([self.lm_id, np.ones(n, dtype=bool)])
@@ -424,6 +536,8 @@ class JointState:
         self.lm_mean = self.lm_mean[keep_lm]
         self.lm_first = self.lm_first[keep_lm]
         self.lm_track = self.lm_track[keep_lm]
+        self.lm_prev_z = self.lm_prev_z[keep_lm]
+        self.lm_prev_frame = self.lm_prev_frame[keep_lm]
         if self.inverse_depth:
             self.lm_id = self.lm_id[keep_lm]
             self.anchor_R = self.anchor_R[keep_lm]
@@ -434,6 +548,13 @@ class JointState:
     def state_dim(self) -> int:
         """Rows of the joint covariance, retired landmarks included."""
         return self.P.shape[0] + (0 if self.retired is None else self.retired.F.shape[0])
+
+
+def _block_diagonal(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    out = np.zeros((A.shape[0] + B.shape[0], A.shape[1] + B.shape[1]))
+    out[: A.shape[0], : A.shape[1]] = A
+    out[A.shape[0] :, A.shape[1] :] = B
+    return out
 
 
 def symmetric_downdate(P: np.ndarray, Y: np.ndarray, work: np.ndarray) -> None:
@@ -513,9 +634,12 @@ class JointEKF:
     def initialise(self, seq: Sequence, config: FilterConfig, guard: NumericalGuard) -> None:
         self.config = config
         self.guard = guard
+        self.state = JointState(config, seq.n_tracks, self.textbook)
+        if self.state.clone is not None:  # a row's own sigma (module docstring)
+            a = self.state.ar1
+            config = config.replace(pixel_sigma=config.pixel_sigma * np.sqrt((1 - a) / (1 + a)))
         self.model = StereoModel.from_config(seq.calibration, config)
         self.last = seq.track_last_frame()
-        self.state = JointState(config, seq.n_tracks, self.textbook)
         self.max_dim = self.state.state_dim
 
     def predict(self, motion: MotionInput) -> None:
@@ -526,6 +650,7 @@ class JointEKF:
     def update(self, frame: FrameObservations) -> UpdateCounts:
         st, model, guard = self.state, self.model, self.guard
         t, tracks, z = frame.frame, frame.tracks, frame.z
+        st.frame = t
         valid = model.valid_observations(z, depth_limit=False)
         active = st.slot[tracks] >= 0
         upd = valid & active

@@ -744,7 +744,8 @@ def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     ``vislam calibrate`` fitted, times sqrt of the velocity's and gyro's correlation times: the
     long-run interval sigma, module docstring, and times :func:`sigma_widening` for the sigma's own
     uncertainty), the pixel sigma times sqrt of its correlation time along a
-    track (the long-run sigma, module docstring), velocity pairing; ``gyro_bias=False`` when the
+    track (the long-run sigma, module docstring) and the AR(1) coefficient of that correlation
+    (``pixel_ar1``, read by ekf-joint's ``pixel_reading = "ar1"``), velocity pairing; ``gyro_bias=False`` when the
     model says the data has no bias (a model with a bias leaves ``gyro_bias`` as the config has
     it: the bias is subtracted from the data by :func:`model_sequence`, and a filter estimating
     one starts from zero, with the model's ``gyro_bias_sigma`` (the largest axis) where it has
@@ -760,6 +761,7 @@ def model_config(config: FilterConfig, model: Model) -> FilterConfig:
         "gyro_sigma": tuple(f * x * math.sqrt(t) * w
                             for x, t, w in zip(model.gyro_sigma, g_time, g_wide)),
         "pixel_sigma": long_run_pixel_sigma(model.pixel_sigma, model.pixel_correlation_time),
+        "pixel_ar1": ar1_coefficient(model.pixel_correlation_time),
         "velocity_pairing": model.velocity_pairing,
     }
     if model.gyro_bias is None:

@@ -243,8 +243,21 @@ class StereoModel:
         if not np.isfinite(self.gate):
             ok = finite_rows(S3)
             return ok, int(ok.size - ok.sum())
-        r4 = z - self.predicted_pixels(q)
-        m2 = self.nis(r4, self.full_innovation_cov(S3))
+        return self.gate_innovations(z - self.predicted_pixels(q), S3)
+
+    def gate_innovations(self, r4: np.ndarray, S3: np.ndarray,
+                         noise_scale: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+        """:meth:`gate_check` of 4-row innovations ``r4`` (n, 4) with reduced covariances ``S3``
+        (n, 3, 3); ``noise_scale`` (n,) scales each row's pixel noise (``S3`` holds it scaled
+        already; the rows' 4th dimension takes the same scale): a differenced AR(1) row has
+        ``1 - a^2`` (ekf/joint.py)."""
+        if not np.isfinite(self.gate):
+            ok = finite_rows(S3)
+            return ok, int(ok.size - ok.sum())
+        S4 = self.full_innovation_cov(S3)
+        if noise_scale is not None:
+            S4 = S4 + (noise_scale - 1.0)[:, None, None] * self.S4_extra
+        m2 = self.nis(r4, S4)
         n_bad = 0 if math.isfinite(m2.sum()) else int(m2.size - np.isfinite(m2).sum())
         return m2 <= self.gate, n_bad
 
