@@ -171,6 +171,7 @@ def apply_model_to(sequences: list[BenchSequence], model, config: FilterConfig |
         if converted:
             gt = gt.with_extrinsic(model.cam_T_imu, source=f"model ({mode})")
         entry = {"mode": mode, **(record or {}), "model": model.to_dict(),
+                 "pixel_reading": "long-run" if config is None else config.pixel_reading,
                  "ground_truth_extrinsic": (f"the model's ({mode})" if converted else
                                             "none needed (truth in the IMU frame)" if gt is not None
                                             else None)}

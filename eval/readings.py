@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from vislam.ekf.model import long_run_pixel_sigma
+from vislam.ekf.model import ar1_coefficient, long_run_pixel_sigma
 from vislam.eval.consistency import POSE_NEES_BAND, reference_honesty
 from vislam.eval.inertial_truth import AGREEMENT_RATIO, GyroAgreement
 from vislam.eval.metrics import ALIGN_DESCRIPTIONS
@@ -295,9 +295,12 @@ def model_line(model: dict | None) -> str:
            "config": "from " + str(model.get("source", "--config"))}.get(mode, str(mode))
     radial = "" if m.get("radial_k1") is None else f", radial lens term k1 {m['radial_k1']:.3g}"
     tau = m.get("pixel_correlation_time")
+    long_run = long_run_pixel_sigma(m.get('pixel_sigma', float('nan')), tau)
     correlated = "" if tau is None else (
-        f" correlated along tracks over {tau:.3g} frames (the estimators use "
-        f"{long_run_pixel_sigma(m.get('pixel_sigma', float('nan')), tau):.3g} px)")
+        f" correlated along tracks over {tau:.3g} frames (the estimators use {long_run:.3g} px)"
+        if model.get("pixel_reading") != "ar1" else
+        f" correlated along tracks over {tau:.3g} frames (ekf-joint reads them as AR(1), a "
+        f"{ar1_coefficient(tau):.3g}; the other estimators use {long_run:.3g} px)")
     slow = {what: times for what, times in (("velocity", m.get("velocity_correlation_time")),
                                             ("gyro", m.get("gyro_correlation_time"))) if times}
     drifting = "" if not slow else (

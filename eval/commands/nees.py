@@ -16,8 +16,8 @@ NEES_DEFAULT = ("ekf-joint", "ekf-invariant", "smoother")
 #: refused with --imu.
 VELOCITY_FLAGS = ("sim_max_depth", "config", "pixel_sigma", "velocity_sigma", "gyro_sigma",
                   "gate_probability", "no_clean", "velocity_pairing", "keep_landmarks",
-                  "gyro_bias", "max_depth", "min_disparity", "landmarks", "smoother_init",
-                  "gap_prior")
+                  "gyro_bias", "max_depth", "min_disparity", "landmarks", "pixel_reading",
+                  "smoother_init", "gap_prior")
 #: Most Monte Carlo runs in one call (all runs' drives are held in memory).
 MAX_RUNS = 2000
 #: What ``vislam nees`` writes into its folder.

@@ -18,6 +18,7 @@ import numpy as np
 from vislam.ekf.config import (
     FILTER_RULES,
     LANDMARK_PARAMETERISATIONS,
+    PIXEL_READINGS,
     VELOCITY_PAIRINGS,
     FilterConfig,
     settings_tables,
@@ -37,6 +38,7 @@ _FLAG_FIELDS = {
     "max_depth": "max_depth",
     "min_disparity": "min_disparity",
     "landmarks": "landmark_parameterisation",
+    "pixel_reading": "pixel_reading",
 }
 #: Smoother flag (argparse dest) -> SmootherSettings field.
 _SMOOTHER_FLAG_FIELDS = {"smoother_init": "init", "gap_prior": "gap_twist_prior"}
@@ -114,6 +116,9 @@ def add_filter_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--min-disparity", metavar="PX", help="reject smaller disparities")
     g.add_argument("--landmarks", metavar="{" + ",".join(LANDMARK_PARAMETERISATIONS) + "}",
                    help="landmark parameterisation of ekf-joint and ekf-invariant")
+    g.add_argument("--pixel-reading", metavar="{" + ",".join(PIXEL_READINGS) + "}",
+                   help="how ekf-joint reads pixel errors correlated along a track: "
+                        "long-run (default) or ar1 (exact, by differencing)")
     s = parser.add_argument_group("smoother settings (override the [smoother] table of --config)")
     s.add_argument("--smoother-init", metavar="{" + ",".join(INITIALISERS) + "}",
                    help="the batch smoother's initial trajectory (default ekf)")
