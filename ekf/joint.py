@@ -109,6 +109,9 @@ class JointState:
         self.lm_first = np.zeros((0, 3))  # first estimates (FEJ linearisation points)
         self.linearisation = config.joint_linearisation
         self.n_numerical = 0  # observations the last update gated out for numerical reasons
+        #: the last update's accepted slots and their log predictive density (None: no update)
+        self.last_loglik: float | None = None
+        self.last_accepted: np.ndarray | None = None
         self.lm_track = np.zeros(0, dtype=np.int64)
         # AR(1) rows: each landmark's last accepted pixels and their frame.
         self.lm_prev_z = np.zeros((0, 4))
@@ -250,6 +253,7 @@ class JointState:
         update cannot be computed (``S`` not positive definite, a non-finite gain or
         correction, a pose or bias variance that would not stay positive)."""
         self.n_numerical = 0
+        self.last_loglik, self.last_accepted = None, None
         if tracks.size == 0:
             return 0, 0
         slots = self.slot[tracks]
@@ -343,6 +347,10 @@ class JointState:
         B[N] = r
         Ye = dtrsm(1.0, L, B.T, lower=1, overwrite_b=1)
         Y, e = Ye[:, :N], Ye[:, N]
+        # The accepted rows' log predictive density given everything before (their stacked
+        # innovation's): a reading's out-of-sample score (benchmarks/ar1_pixel_ekf.py).
+        self.last_loglik = float(-0.5 * e @ e - np.log(np.diag(L)).sum() - 1.5 * a * np.log(2 * np.pi))
+        self.last_accepted = slots[acc]
         dx = Y.T @ e  # = K r
         c = self.core
         if not (
