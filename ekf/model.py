@@ -63,7 +63,9 @@ white sigmas of one sample; ``velocity_correlation_time`` and ``gyro_correlation
 axis, >= 1, :mod:`graph.motion_correlation`) the long-run variance of an interval's twist noise
 over its white variance: a velocity source's errors drift slowly, and a drive's drift is built
 from their slow part. The estimators treat intervals as independent, so they use the long-run
-interval sigma, the interval sigma times ``sqrt(tau)`` (:func:`model_config`). Absent: 1.
+interval sigma, the interval sigma times ``sqrt(tau)`` (:func:`model_config`). Absent: the
+pairing's own ratio for white samples, :func:`white_sample_ratio` (2 under "mean", whose two
+consecutive intervals share a sample; 1 otherwise), which is also the least any axis takes.
 
 What the drive cannot determine (issue 34). ``noise_undetermined`` names the noise levels
 (:data:`NOISE_LEVELS`: ``velocity_sigma_x`` ... ``gyro_correlation_time_z``) that the drive
@@ -706,6 +708,16 @@ def interval_sigma_factor(pairing: str) -> float:
     return math.sqrt(0.5) if pairing == "mean" else 1.0
 
 
+def white_sample_ratio(pairing: str) -> float:
+    """The long-run over white variance of the interval twist noise that white samples give
+    under ``pairing``: 2 for "mean" (intervals k and k + 1 share sample k + 1, so their errors
+    correlate by a half: ``1 + 2 * 0.5``), 1 otherwise. Estimators that treat intervals as
+    independent need the long-run sigma, the sample's own under "mean"; the interval's white
+    sigma (:func:`interval_sigma_factor`) left them half the variance over any stretch
+    (docs/findings.md, "The mean pairing's intervals are not independent")."""
+    return 1.0 / interval_sigma_factor(pairing) ** 2
+
+
 def ar1_coefficient(correlation_time: float | None) -> float:
     """The per-frame correlation ``a = (tau - 1) / (tau + 1)`` of AR(1) errors whose integrated
     correlation time is ``tau = (1 + a) / (1 - a)`` (module docstring); 0 (white) for None or
@@ -741,8 +753,8 @@ def sigma_widening(model: Model, kind: str) -> tuple[float, float, float]:
 def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     """``config`` with the model's noise model: velocity and gyro sigmas per axis (per
     interval: the model's per-sample sigmas times :func:`interval_sigma_factor`, the covariance
-    ``vislam calibrate`` fitted, times sqrt of the velocity's and gyro's correlation times: the
-    long-run interval sigma, module docstring, and times :func:`sigma_widening` for the sigma's own
+    ``vislam calibrate`` fitted, times sqrt of the velocity's and gyro's correlation times, each
+    at least the pairing's :func:`white_sample_ratio`: the long-run interval sigma, module docstring, and times :func:`sigma_widening` for the sigma's own
     uncertainty), the pixel sigma times sqrt of its correlation time along a
     track (the long-run sigma, module docstring) and the AR(1) coefficient of that correlation
     (``pixel_ar1``, read by ekf-joint's ``pixel_reading = "ar1"``), velocity pairing; ``gyro_bias=False`` when the
@@ -751,8 +763,9 @@ def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     one starts from zero, with the model's ``gyro_bias_sigma`` (the largest axis) where it has
     one)."""
     f = interval_sigma_factor(model.velocity_pairing)
-    v_time = model.velocity_correlation_time or (1.0, 1.0, 1.0)
-    g_time = model.gyro_correlation_time or (1.0, 1.0, 1.0)
+    null = white_sample_ratio(model.velocity_pairing)
+    v_time = tuple(max(t, null) for t in (model.velocity_correlation_time or (1.0, 1.0, 1.0)))
+    g_time = tuple(max(t, null) for t in (model.gyro_correlation_time or (1.0, 1.0, 1.0)))
     v_wide = sigma_widening(model, "velocity")
     g_wide = sigma_widening(model, "gyro")
     changes: dict[str, Any] = {
@@ -775,6 +788,24 @@ def model_config(config: FilterConfig, model: Model) -> FilterConfig:
         changes.update(speed_scale=True, speed_scale_sigma=model.speed_scale_sigma,
                        speed_scale_walk=model.speed_scale_walk or 0.0)
     return config.replace(**changes)
+
+
+def per_interval_config(config: FilterConfig, model: Model) -> FilterConfig:
+    """``model_config(config, model)`` (``config``, already under the model, from it) with the
+    pairing's :func:`white_sample_ratio` taken back out of the velocity and gyro sigmas, axis by
+    axis where the model's own correlation time is below it: the white interval sigmas that a
+    test of one interval at a time (:mod:`graph.data_check`) reads, where the estimators need
+    the long-run ones."""
+    null = white_sample_ratio(model.velocity_pairing)
+    if null == 1.0:
+        return config
+
+    def back(sigmas: np.ndarray, times) -> tuple:
+        t = np.asarray(times or (1.0, 1.0, 1.0), dtype=float)
+        return tuple(float(x) for x in sigmas * np.sqrt(np.maximum(t, 1.0) / np.maximum(t, null)))
+
+    return config.replace(velocity_sigma=back(config.velocity_sigmas, model.velocity_correlation_time),
+                          gyro_sigma=back(config.gyro_sigmas, model.gyro_correlation_time))
 
 
 def apply_model(seq, config: FilterConfig, model: Model):

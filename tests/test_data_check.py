@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from vislam.ekf.config import FilterConfig
-from vislam.ekf.model import apply_model, model_config
+from vislam.ekf.model import apply_model, model_config, per_interval_config
 from vislam.eval.cli import main
 from vislam.eval.simulate import SimConfig, simulate, write_simulation
 from vislam.graph.data_check import (
@@ -34,6 +34,7 @@ def check_under(result, model=None, settings=SETTINGS, extrinsic="model"):
         seq, config = apply_model(result.sequence, FilterConfig(), model)
     else:
         seq, config = result.sequence, model_config(FilterConfig(), model)
+    config = per_interval_config(config, model)  # the check reads one interval at a time
     solution = solve_smoother(seq, config, settings)
     return velocity_check(solution, config), solution, config
 

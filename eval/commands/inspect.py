@@ -232,7 +232,7 @@ def check_lines(path: Path, config, settings, model=None, *, stretch_s: float = 
                 level: float = CHECK_LEVEL) -> list[str]:
     """The lines of ``--check``: the drive solved by the smoother under ``config`` (a model's
     extrinsic and gyro bias applied to the data first) and its velocity check."""
-    from vislam.ekf.model import model_sequence
+    from vislam.ekf.model import model_sequence, per_interval_config
     from vislam.eval.loader import load_sequence
     from vislam.graph.data_check import velocity_check
     from vislam.graph.smoother import solve_smoother
@@ -243,6 +243,7 @@ def check_lines(path: Path, config, settings, model=None, *, stretch_s: float = 
     seq = load_sequence(path, clean=False)
     if model is not None:  # its noise model is in config already (filter_config_from_args)
         seq = model_sequence(seq, model)
+        config = per_interval_config(config, model)  # the check reads one interval at a time
     solution = solve_smoother(seq, config, settings)
     check = velocity_check(solution, config, stretch_s=stretch_s, level=level)
     where = "the file's" if model is None else "the model's"
