@@ -333,6 +333,7 @@ class FilterConfig:
     #: whitening by differencing each row against the track's previous one; ``pixel_sigma`` is
     #: the long-run sigma either way, so that under "ar1" a row's own sigma is ``pixel_sigma
     #: sqrt((1 - a) / (1 + a))``. Other estimators read "long-run" whatever this says.
+    #: Experimental: less accurate than "long-run" on simulated drives (docs/findings.md).
     pixel_reading: str = "long-run"
     #: The correlation ``a`` of a track's consecutive pixel errors (0: none; read by
     #: ``pixel_reading = "ar1"``); an identified model sets it from its correlation time tau,

@@ -14,8 +14,7 @@ from vislam.ekf.geometry import se3_exp
 from vislam.ekf.joint import JointState, run_joint
 from vislam.ekf.model import apply_model, model_config
 from vislam.ekf.stereo_update import StereoModel
-from vislam.eval.consistency import pose_nees
-from vislam.eval.metrics import ate_rmse
+from vislam.eval.consistency import landmark_nees
 from vislam.eval.sim_config import SimConfig
 from vislam.eval.simulate import DEFAULT_SIM, simulate, true_model
 
@@ -145,20 +144,23 @@ def test_a_differenced_row_is_gated_with_its_own_noise():
     np.testing.assert_array_equal(same, model.gate_check(z, q, S3)[0])
 
 
-def test_ar1_pays_where_the_errors_drift_slowly():
-    """Simulated drives whose pixel errors are AR(1) with a = 0.9 (tau 19), each under its true
-    model: over four drives the exact reading is at least 10 % more accurate than the long-run
-    one (measured: 0.79x), and its mean pose NEES is inside one drive's band (measured 10.2:
-    more confident than the long-run reading's 4.2, which is too wide; docs/findings.md,
-    "Pixel errors as AR(1) in ekf-joint")."""
-    ate, nees = {"long-run": [], "ar1": []}, {"long-run": [], "ar1": []}
-    for seed in range(4):
-        sim = _drive(seed, 200, 0.9)
-        seq, config = apply_model(sim.sequence, FilterConfig(), true_model(sim))
-        frames = np.arange(len(sim.poses))
-        for reading in ate:
+def test_ar1_landmarks_are_consistent_where_the_poses_are_known():
+    """Pixel errors AR(1) with a = 0.9 (tau 19) and velocities precise enough to leave the
+    landmarks to the pixels: under the exact reading the landmarks' NEES has the median of a
+    chi-square with 3 dof (2.37; measured 2.28 over 3 drives), where the long-run reading's is
+    far below it (0.68: each row independent with the long-run sigma is too wide for a track).
+    On the poses, where vision and velocities meet, the exact reading is less accurate than the
+    long-run one on the simulator's road drives (docs/findings.md, "Pixel errors as AR(1) in
+    ekf-joint"); this checks the reading itself."""
+    median = {}
+    for reading in ("long-run", "ar1"):
+        nees = []
+        for seed in range(3):
+            sim = _drive(seed, 150, 0.9, velocity_sigma=0.005, gyro_sigma=0.0005)
+            seq, config = apply_model(sim.sequence, FilterConfig(), true_model(sim))
             est = run_joint(seq, config.replace(pixel_reading=reading))
-            ate[reading].append(ate_rmse(est.poses, sim.poses, align="se3"))
-            nees[reading].append(float(np.nanmean(pose_nees(est, frames, sim.poses))))
-    assert np.mean(ate["ar1"]) < 0.9 * np.mean(ate["long-run"]), ate
-    assert 1.24 < np.mean(nees["ar1"]) < 14.45, nees
+            n = np.asarray(landmark_nees(est, sim.landmarks))
+            nees.append(n[np.isfinite(n)])
+        median[reading] = float(np.median(np.concatenate(nees)))
+    assert 1.9 < median["ar1"] < 2.9, median
+    assert median["long-run"] < 1.0, median

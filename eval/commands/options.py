@@ -118,7 +118,8 @@ def add_filter_arguments(parser: argparse.ArgumentParser) -> None:
                    help="landmark parameterisation of ekf-joint and ekf-invariant")
     g.add_argument("--pixel-reading", metavar="{" + ",".join(PIXEL_READINGS) + "}",
                    help="how ekf-joint reads pixel errors correlated along a track: "
-                        "long-run (default) or ar1 (exact, by differencing)")
+                        "long-run (default) or ar1 (exact, by differencing; experimental, "
+                        "less accurate on simulated drives)")
     s = parser.add_argument_group("smoother settings (override the [smoother] table of --config)")
     s.add_argument("--smoother-init", metavar="{" + ",".join(INITIALISERS) + "}",
                    help="the batch smoother's initial trajectory (default ekf)")
