@@ -3,7 +3,8 @@
     .venv/bin/python benchmarks/drift_check.py [DRIVE ...] [--model identified|true]
                                               [--stretch 10] [--frames N]
 
-``DRIVE`` is a path to a drive (.npz), ``default`` (the simulator's default drive) or
+``DRIVE`` is a path to a drive (.npz), ``default`` (the simulator's default drive; ``default:SEED``
+the same with another seed) or
 ``campaign:SEED`` (a drive of the campaign, eval.campaign.draw_drive); default: ``default
 campaign:0 campaign:1``. ``--model identified`` (default) uses the model `vislam bench`
 identifies (cached in VISLAM_CACHE_DIR), ``true`` a simulated drive's true model
@@ -23,10 +24,10 @@ def _drive(name: str, frames: int | None):
     """``(BenchSequence, true model or None)``."""
     from vislam.eval.drives import bench_sequence
 
-    if name == "default":
+    if name == "default" or name.startswith("default:"):
         from vislam.eval.simulate import default_simulation, true_model
 
-        result = default_simulation(0)
+        result = default_simulation(int(name.split(":", 1)[1]) if ":" in name else 0)
         return bench_sequence(result), true_model(result)
     if name.startswith("campaign:"):
         from vislam.eval.campaign import draw_drive, drive_true_model
