@@ -754,10 +754,11 @@ def model_config(config: FilterConfig, model: Model) -> FilterConfig:
     """``config`` with the model's noise model: velocity and gyro sigmas per axis (per
     interval: the model's per-sample sigmas times :func:`interval_sigma_factor`, the covariance
     ``vislam calibrate`` fitted, times sqrt of the velocity's and gyro's correlation times, each
-    at least the pairing's :func:`white_sample_ratio`: the long-run interval sigma, module docstring, and times :func:`sigma_widening` for the sigma's own
-    uncertainty), the pixel sigma times sqrt of its correlation time along a
-    track (the long-run sigma, module docstring) and the AR(1) coefficient of that correlation
-    (``pixel_ar1``, read by ekf-joint's ``pixel_reading = "ar1"``), velocity pairing; ``gyro_bias=False`` when the
+    at least the pairing's :func:`white_sample_ratio`: the long-run interval sigma, module
+    docstring, and times :func:`sigma_widening` for the sigma's own uncertainty), the pixel
+    sigma times sqrt of its correlation time along a track (the long-run sigma, module
+    docstring) and the AR(1) coefficient of that correlation (``pixel_ar1``, read by
+    ekf-joint's ``pixel_reading = "ar1"``), velocity pairing; ``gyro_bias=False`` when the
     model says the data has no bias (a model with a bias leaves ``gyro_bias`` as the config has
     it: the bias is subtracted from the data by :func:`model_sequence`, and a filter estimating
     one starts from zero, with the model's ``gyro_bias_sigma`` (the largest axis) where it has

@@ -403,7 +403,8 @@ def drive_true_model(drive: CampaignDrive, result: SimResult):
     its gyro bias known (sigma :data:`TRUE_BIAS_SIGMA`), white velocity and gyro samples under the "mean" pairing get the long-run ratio 2 the
     simulator's true model leaves out (two intervals that share a sample are correlated by a
     half: the estimators, which treat intervals as independent, need the long-run sigma, the
-    sample's; docs/findings.md), and where the drive carries a speed-scale fault, the
+    sample's; docs/findings.md; :func:`ekf.model.model_config` now takes it for every model,
+    so this only says so in the model itself), and where the drive carries a speed-scale fault, the
     speed-scale state that describes it: ``s`` uniform in +-amplitude (sigma ``amplitude /
     sqrt(3)``), independent knots ``time_scale_s`` apart (a walk of ``sqrt(2/3) amplitude /
     sqrt(time_scale_s)``)."""

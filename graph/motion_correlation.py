@@ -38,7 +38,8 @@ sigma_interval^2`` (``velocity_correlation_time``, ``gyro_correlation_time``; fr
 integrated correlation time of the interval noise) and the estimators use ``sigma sqrt(tau)``
 (:func:`ekf.model.model_config`). With the "mean" pairing two intervals share a sample, so
 white samples give ``tau = 2``; the test's null is the samples', so that alone is not
-evidence. The simulator's white noise keeps none; what real drives keep is in docs/findings.md.
+evidence (and :func:`ekf.model.model_config` gives every axis at least that ratio,
+:func:`ekf.model.white_sample_ratio`, kept here or not). The simulator's white noise keeps none; what real drives keep is in docs/findings.md.
 
 What the blocks cannot determine (issue 34). Each axis's long-run sigma has its own
 uncertainty, ``sd(log sigma) = 1 / sqrt(2 n_blocks (1 - r))`` with ``r`` the posterior's share of
