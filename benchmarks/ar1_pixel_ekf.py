@@ -10,6 +10,10 @@ differenced rows with a clone of the previous pose, ekf/joint.py). Prints each s
 ATE (m) and mean pose NEES, and their means. With ``--a 0`` both readings are the white filter,
 the floor of its own consistency on these drives.
 
+With ``--smoother`` each drive also runs the batch smoother under both readings
+(``benchmarks/ar1_pixel_smoother.py``'s exact AR(1) factors, a Python factor per row: slow), to
+tell the reading from the filter; ``--pixel-sigma`` sets the drives' pixel noise (px).
+
 With ``--drive`` (a real drive and its model from ``vislam calibrate FILE --out MODEL.toml``)
 it prints two candidate rules for choosing the reading: the readings' out-of-sample pixel
 likelihood (each update's log predictive density of its accepted rows, ``JointState.last_loglik``,
@@ -97,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--a", type=float, default=0.9, help="AR(1) coefficient of the errors")
     parser.add_argument("--frames", type=int, default=300, help="frames per drive")
     parser.add_argument("--seeds", type=int, default=10, help="drives (seeds 0..N-1)")
+    parser.add_argument("--pixel-sigma", type=float, default=None, help="pixel noise (px)")
+    parser.add_argument("--smoother", action="store_true",
+                        help="also the batch smoother under both readings (slow)")
     parser.add_argument("--drive", metavar="FILE.npz", help="a real drive instead (the rules)")
     parser.add_argument("--config", metavar="MODEL.toml", help="its model (with --drive)")
     args = parser.parse_args(argv)
@@ -113,23 +120,30 @@ def main(argv: list[str] | None = None) -> int:
     from vislam.eval.sim_config import SimConfig
     from vislam.eval.simulate import DEFAULT_SIM, simulate, true_model
 
-    readings = ("long-run", "ar1")
+    readings = ("long-run", "ar1") + (("smoother long-run", "smoother ar1") if args.smoother else ())
     ate = {r: [] for r in readings}
     nees = {r: [] for r in readings}
+    extra = {} if args.pixel_sigma is None else {"pixel_sigma": args.pixel_sigma}
     for seed in range(args.seeds):
         sim = simulate(SimConfig(**{**DEFAULT_SIM.__dict__, "seed": seed, "n_frames": args.frames,
-                                    "pixel_correlation": args.a}))
-        seq, config = apply_model(sim.sequence, FilterConfig(), true_model(sim))
+                                    "pixel_correlation": args.a, **extra}))
+        model = true_model(sim)
+        seq, config = apply_model(sim.sequence, FilterConfig(), model)
         frames = np.arange(len(sim.poses))
         for r in readings:
-            est = run_joint(seq, config.replace(pixel_reading=r))
+            if r.startswith("smoother"):
+                from ar1_pixel_smoother import solve
+
+                est = solve(seq, config, model, r.split()[1], marginals=True)[0]
+            else:
+                est = run_joint(seq, config.replace(pixel_reading=r))
             ate[r].append(ate_rmse(est.poses, sim.poses, align="se3"))
             nees[r].append(float(np.nanmean(pose_nees(est, frames, sim.poses))))
-    print(f"a {args.a}, {args.frames} frames, seeds 0-{args.seeds - 1}: ekf-joint aligned ATE (m) "
-          "/ mean pose NEES")
+    print(f"a {args.a}, {args.frames} frames, seeds 0-{args.seeds - 1}: ekf-joint (and smoother) "
+          "aligned ATE (m) / mean pose NEES")
     for r in readings:
-        print(f"{r:9s} ATE " + " ".join(f"{x:.3f}" for x in ate[r]) + f"  mean {np.mean(ate[r]):.4f}")
-        print(f"{'':9s} NEES " + " ".join(f"{x:.2f}" for x in nees[r]) + f"  mean {np.mean(nees[r]):.2f}")
+        print(f"{r:17s} ATE " + " ".join(f"{x:.4f}" for x in ate[r]) + f"  mean {np.mean(ate[r]):.4f}")
+        print(f"{'':17s} NEES " + " ".join(f"{x:.2f}" for x in nees[r]) + f"  mean {np.mean(nees[r]):.2f}")
     return 0
 
 
