@@ -26,28 +26,21 @@ from vislam.ekf import joint as J
 
 class MAState(J.JointState):
     """JointState with the shared sample's noise as core rows after the bias and scale."""
+
     def __init__(self, config, n_tracks, textbook=False):
         super().__init__(config, n_tracks, textbook)
-        self.ma = self.core
         c = self.core
         P = np.zeros((c + 6, c + 6))
         P[:c, :c] = self.P
         P[c:, c:] = config.velocity_cov  # n_0
         self.P, self.core = P, c + 6
+
     def predict(self, tau, u, config):
-        b = self.ma
-        if b > 6:
-            B = J.twist_error_matrix(u, config.gyro_bias, config.speed_scale)
-            errors = np.r_[self.bias if config.gyro_bias else [], [self.scale] if config.speed_scale else []]
-            u_c, Phi_b, _ = J.error_state_transition(tau, u, errors, B)
-            Q_b = np.zeros((b, b))
-            if config.gyro_bias:
-                Q_b[6:9, 6:9] = config.gyro_bias_walk**2 * tau * np.eye(3)
-            if config.speed_scale:
-                Q_b[b - 1, b - 1] = config.speed_scale_walk**2 * tau
-        else:
-            u_c, Phi_b, Q_b = u, J.prediction_jacobian(tau, u), np.zeros((6, 6))
-        c = self.core
+        """Interval k's error ``tau (n_k + n_(k+1)) / 2`` with ``n_k`` these rows, then
+        ``n_(k+1)`` in them: ``Phi = [[Phi_b, E], [0, 0]]``, noise ``[E; I] W [E; I]^T``."""
+        u_c, Phi_b, Q_b = self.transition(tau, u, config)
+        Q_b[:6, :6] = 0.0  # the twist noise enters through the sample rows instead
+        b, c = self.base, self.core
         E = np.zeros((b, 6))
         E[:6] = 0.5 * tau * np.eye(6)
         Phi = np.zeros((c, c))
@@ -57,13 +50,8 @@ class MAState(J.JointState):
         Q = np.zeros((c, c))
         Q[:b, :b] = Q_b
         Q += G @ self.W @ G.T
-        self.U = J.predict_mean(self.U, tau, u_c)
-        P = self.P
-        Pcc = Phi @ P[:c, :c] @ Phi.T + Q
-        P[:c, :c] = 0.5 * (Pcc + Pcc.T)
-        if P.shape[0] > c:
-            P[:c, c:] = Phi @ P[:c, c:]
-            P[c:, :c] = P[:c, c:].T
+        self.propagate(tau, u_c, Phi, Q)
+
 
 class MAEKF(J.JointEKF):
     def initialise(self, seq, config, guard):

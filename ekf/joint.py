@@ -88,6 +88,7 @@ class JointState:
         if self.clone is not None and config.keep_landmarks:
             raise InputError("setting 'pixel_reading' = \"ar1\" cannot be combined with "
                              "'keep_landmarks' in ekf-joint (ekf/joint.py)")
+        self.base = base  # rows of pose, bias and scale
         self.core = base + (6 if self.clone is not None else 0)
         self.Uc = np.eye(4)
         self.frame = -1  # the frame of the last update
@@ -179,7 +180,17 @@ class JointState:
     def predict(self, tau: float, u: np.ndarray, config: FilterConfig) -> None:
         """Paper eq. 11 on the pose (and bias) block; cross-covariances follow ``Phi``. With
         AR(1) pixels the clone first takes the pose's rows, and ``Phi`` holds it fixed."""
-        c = self.core if self.clone is None else self.clone
+        u_c, Phi, Q = self.transition(tau, u, config)
+        if self.clone is not None:
+            self.copy_pose_to_clone()
+            Phi = _block_diagonal(Phi, np.eye(6))
+            Q = _block_diagonal(Q, np.zeros((6, 6)))
+        self.propagate(tau, u_c, Phi, Q)
+
+    def transition(self, tau: float, u: np.ndarray, config: FilterConfig):
+        """``(u_c, Phi, Q)`` of one prediction on the rows of pose, bias and scale (the first
+        ``self.base`` rows): the corrected twist, the error transition and its noise."""
+        c = self.base
         if c > 6:  # the twist errors [b_g; s] where configured (ekf.prediction.error_state_transition)
             B = twist_error_matrix(u, config.gyro_bias, config.speed_scale)
             errors = np.r_[self.bias if config.gyro_bias else [], [self.scale] if config.speed_scale else []]
@@ -190,15 +201,13 @@ class JointState:
                 Q[6:9, 6:9] = config.gyro_bias_walk**2 * tau * np.eye(3)
             if config.speed_scale:
                 Q[-1, -1] = config.speed_scale_walk**2 * tau
-        else:
-            u_c = u
-            Phi = prediction_jacobian(tau, u)
-            Q = process_noise(tau, self.W)
-        if self.clone is not None:
-            self.copy_pose_to_clone()
-            Phi = _block_diagonal(Phi, np.eye(6))
-            Q = _block_diagonal(Q, np.zeros((6, 6)))
-            c = self.core
+            return u_c, Phi, Q
+        return u, prediction_jacobian(tau, u), process_noise(tau, self.W)
+
+    def propagate(self, tau: float, u_c: np.ndarray, Phi: np.ndarray, Q: np.ndarray) -> None:
+        """The mean along ``u_c`` and ``P <- Phi P Phi^T + Q`` on the first ``len(Phi)`` (core)
+        rows, their cross-covariances by ``Phi``, and the retired landmarks' share."""
+        c = Phi.shape[0]
         self.U = predict_mean(self.U, tau, u_c)
         P = self.P
         Pcc = Phi @ P[:c, :c] @ Phi.T + Q
