@@ -73,13 +73,11 @@ def residual_correlations(seq, config):
 
 
 def real_drive(path: str, config_path: str) -> int:
-    import argparse as ap
-
     from vislam.ekf.model import model_sequence
     from vislam.eval.commands.options import filter_config_from_args, model_from_args
     from vislam.eval.loader import load_sequence
 
-    ns = ap.Namespace(config=config_path)
+    ns = argparse.Namespace(config=config_path)
     config, model = filter_config_from_args(ns), model_from_args(ns)
     seq = model_sequence(load_sequence(path), model)
     a, b = prequential(seq, config, "long-run"), prequential(seq, config, "ar1")
