@@ -14,6 +14,13 @@ import importlib.util
 import os
 from pathlib import Path
 
+# One BLAS thread per test process (and per process a test starts) unless the environment
+# says otherwise: the tests run in one worker process per core (``-n auto``), and OpenBLAS's
+# own threads on top of them only contend for the same cores (they spin while they wait):
+# measured on 2 cores, a tenth of the CPU (docs/findings.md, 2026-12-04). Set before numpy is
+# first imported; pytest_configure applies it to a numpy imported earlier.
+BLAS_THREADS = int(os.environ.setdefault("OPENBLAS_NUM_THREADS", "1"))
+
 import pytest
 from hypothesis import HealthCheck, settings
 
@@ -34,6 +41,9 @@ from vislam.eval.datasets import drive_path as _drive_path
 
 
 def pytest_configure(config):
+    from threadpoolctl import ThreadpoolController
+
+    ThreadpoolController().limit(limits=BLAS_THREADS, user_api="blas")  # BLAS_THREADS
     if os.environ.get("VISLAM_BOTH_TIERS") == "1" and not hasattr(config, "workerinput"):
         config.pluginmanager.register(BothTiers(), "vislam-both-tiers")
     config.addinivalue_line(
