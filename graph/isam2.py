@@ -16,19 +16,21 @@ tree, so an update that re-observes it re-eliminates everything since (docs/find
 ``settings.isam2_return_batch`` frames, and every later observation of it while it waits) and
 adds them together, gated against the estimates of then, with the frame that ends the batch;
 that update orders only the frame's new variables last, not the returning landmarks. Held
-observations enter at linearisation points up to a batch old, so on a drive with returns the
-final relinearisations use ``settings.isam2_return_relinearize_threshold`` (0.01) instead of
-``isam2_relinearize_threshold``. A drive whose tracks never return is not affected (a gap
-that track cleaning made, by taking out an observation, is not a return).
+observations enter at linearisation points up to a batch old; the final relinearisations
+relinearise every variable, so that costs nothing at the end. A drive whose tracks never
+return is not affected (a gap that track cleaning made, by taking out an observation, is not
+a return).
 
 After each update iSAM2 back-substitutes only where the solution moved by more than
 ``settings.isam2_wildfire_threshold`` (GTSAM's wildfire; 0.01, GTSAM's default is 0.001): the
 frame's new pose and the landmarks it sees are exact, older variables may be that stale, and the
 back-substitution of the whole drive after every frame is what made a long drive's cost grow
-with its length. The final relinearisations decide on the full solution and the estimate is
-``calculateBestEstimate`` (a full back-substitution), so the result does not depend on that
-threshold (with ``calculateEstimate`` it did: docs/findings.md). The fixed-lag smoother keeps
-GTSAM's threshold, as it reports each variable when it leaves the window, and reads the
+with its length. The final relinearisations (``settings.isam2_final_relinearizations``
+Gauss-Newton steps from the full solution, every variable relinearised: what iSAM2's forced
+relinearisations with a full solve compute, solved in batch, :func:`final_relinearizations`)
+decide on the full solution, so the result does not depend on that threshold (with
+``calculateEstimate`` it did, and with iSAM2's own final updates a little: their first step
+was the stale solution; docs/findings.md). The fixed-lag smoother keeps GTSAM's threshold, as it reports each variable when it leaves the window, and reads the
 variables still in the window at the end from the full back-substitution too.
 
 The fixed-lag smoother (GTSAM's ``IncrementalFixedLagSmoother``, iSAM2 underneath) runs the same
@@ -72,7 +74,7 @@ from vislam.graph.factors import (
 )
 from vislam.ekf.numerics import NumericalGuard
 from vislam.ekf.runner import finish_estimate, prepare_sequence
-from vislam.graph.marginals import isam2_marginals
+from vislam.graph.marginals import schur_marginals
 from vislam.ekf.conventions import gtsam_cov_to_estimate
 from vislam.graph.pose_conversions import L, X, estimation_error, named_error, to_pose3
 from vislam.graph.settings import SmootherSettings
@@ -91,9 +93,11 @@ _GATE_FACTOR = 4.0
 
 @dataclass
 class Isam2Result:
-    """What :func:`isam2_solve` leaves: the solver, its estimate and the factors it holds."""
+    """What :func:`isam2_solve` leaves: its estimate and the factors it holds."""
 
-    isam: gtsam.ISAM2
+    #: The nonlinear factors; ``values``: the final estimate (smoother-isam2 only).
+    factors: gtsam.NonlinearFactorGraph
+    values: gtsam.Values | None
     poses: np.ndarray
     landmarks: np.ndarray
     tracks: np.ndarray
@@ -328,24 +332,25 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
               "held_observations": n_held}
     if window is not None:
         return Isam2Result(
-            isam=isam, poses=window.poses, landmarks=window.landmarks, tracks=tracks,
+            factors=isam.getFactors(), values=None, poses=window.poses, landmarks=window.landmarks, tracks=tracks,
             rows=rows.subset(used), rejected=rejected, initialised=initialised, timing=timing,
             n_gap_priors=n_prior, pose_cov=window.pose_cov, landmark_cov=window.landmark_cov,
         )
     tick = time.perf_counter()
+    # copies: the references GTSAM returns would keep the solver, and its Bayes tree, alive
+    factors = gtsam.NonlinearFactorGraph(isam.getFactorsUnsafe())
+    theta = gtsam.Values(isam.getLinearizationPoint())
+    del isam  # the final rounds are solved in batch: the Bayes tree is not needed any more
     try:
-        final = gtsam.ISAM2UpdateParams()
-        final.force_relinearize = True
-        final.forceFullSolve = True  # the relinearisation decided on the full solution
-        for _ in range(settings.isam2_final_relinearizations):
-            isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), final)
-        estimate = isam.calculateBestEstimate()
+        estimate = final_relinearizations(factors, theta, settings.isam2_final_relinearizations,
+                                          settings.isam2_factorization)
     except RuntimeError as exc:
         raise estimation_error(exc, "computing the iSAM2 estimate",
                                estimator="smoother-isam2") from None
     optimise_s += time.perf_counter() - tick
     return Isam2Result(
-        isam=isam,
+        factors=factors,
+        values=estimate,
         poses=poses_from_values(estimate, T),
         landmarks=landmarks_from_values(estimate, tracks, M),
         tracks=tracks,
@@ -355,6 +360,24 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
         timing={**timing, "optimise_s": optimise_s},
         n_gap_priors=n_prior,
     )
+
+
+def final_relinearizations(factors: gtsam.NonlinearFactorGraph, theta: gtsam.Values,
+                           rounds: int, factorization: str) -> gtsam.Values:
+    """iSAM2's final rounds, solved in batch: ``rounds`` Gauss-Newton steps from the full
+    solution at the solver's linearisation point ``theta``. That is what ``rounds`` iSAM2
+    updates with no new factors, ``force_relinearize`` and ``forceFullSolve`` compute, then
+    ``calculateBestEstimate``: GTSAM relinearises every variable in an update that forces a
+    full solve, and every factor is linearised at ``theta`` (a factor's cached linearisation is
+    redone whenever one of its variables is relinearised). Solved in iSAM2 itself, each round
+    removes the whole Bayes tree first, and GTSAM's ``removeTop`` keeps the orphaned subtrees
+    in a list it searches for every clique it removes: quadratic in the drive's length (30 s a
+    round on a 4,541-frame road against 0.6 s at 1,200 frames; docs/findings.md)."""
+    eliminate = {"function": gtsam.EliminateQR} if factorization.lower() == "qr" else {}
+    for _ in range(rounds + 1):
+        delta = factors.linearize(theta).optimize(**eliminate)
+        theta = theta.retract(delta)
+    return theta
 
 
 class _Window:
@@ -475,7 +498,8 @@ def _run_isam2(
         est.landmark_cov = result.landmark_cov
     elif settings.compute_marginals:
         tick = time.perf_counter()
-        est.pose_cov, est.landmark_cov = isam2_marginals(result.isam, T, result.tracks, M)
+        est.pose_cov, est.landmark_cov = schur_marginals(result.factors, result.values, T,
+                                                         result.tracks, M)
         timing["marginals_s"] = time.perf_counter() - tick
     total = time.perf_counter() - start
     est.step_time_s = np.full(T, total / T)

@@ -636,13 +636,3 @@ def gtsam_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n_f
         raise estimation_error(exc, "computing marginal covariances") from None
     return gtsam_cov_to_estimate(pose_cov), landmark_cov
 
-
-def isam2_marginals(isam: gtsam.ISAM2, n_frames: int, tracks: np.ndarray,
-                    n_tracks: int) -> tuple[np.ndarray, np.ndarray]:
-    """As :func:`batch_marginals`, for the factors and estimate held by an iSAM2 solver."""
-    try:
-        values = isam.calculateEstimate()
-    except RuntimeError as exc:
-        raise estimation_error(exc, "computing the iSAM2 estimate",
-                               estimator="smoother-isam2") from None
-    return schur_marginals(isam.getFactorsUnsafe(), values, n_frames, tracks, n_tracks)

@@ -95,8 +95,9 @@ class SmootherSettings:
     #: Fluid relinearisation (GTSAM's skip 10) is slower and was less accurate.
     isam2_relinearize_threshold: float = 0.1
     isam2_relinearize_skip: int = 0
-    #: Updates with no new factors after the last frame, each relinearising every variable whose
-    #: change exceeds the threshold (GTSAM's ``force_relinearize``, regardless of the skip).
+    #: Gauss-Newton steps after the last frame, each relinearising every variable (what iSAM2
+    #: updates with no new factors, ``force_relinearize`` and ``forceFullSolve`` do; solved in
+    #: batch: graph.isam2.final_relinearizations).
     isam2_final_relinearizations: int = 3
     #: iSAM2's factorisation, "cholesky" (GTSAM's default) or "qr" (slower). A run whose
     #: Cholesky factorisation fails ("indeterminate system": an ill-conditioned system) is
@@ -112,9 +113,10 @@ class SmootherSettings:
     #: this (GTSAM's wildfire threshold; its default is 0.001): the frame's new variables are
     #: exact, older ones at most this stale; the final estimate is solved in full whatever it is.
     isam2_wildfire_threshold: float = 0.01
-    #: iSAM2's relinearisation threshold (the final relinearisations') on a drive whose returning
-    #: observations waited: they entered at linearisation points up to ``isam2_return_batch``
-    #: frames old, so every variable that moved more than this is relinearised at the end.
+    #: iSAM2's relinearisation threshold during the run (with ``isam2_relinearize_skip`` above 0)
+    #: on a drive whose returning observations waited: they entered at linearisation points up
+    #: to ``isam2_return_batch`` frames old. The final relinearisations relinearise every
+    #: variable whatever the threshold.
     isam2_return_relinearize_threshold: float = 0.01
     #: The fixed-lag smoother's window (``smoother-fixed-lag``), seconds: a pose leaves it this
     #: long after its frame, a landmark this long after its last observation.

@@ -15,7 +15,7 @@ from vislam.eval.metrics import ate_rmse
 from vislam.eval.simulate import SimConfig, simulate
 from vislam.graph.factors import (NoiseModels, build_graph, keep_multi_observed, relative_motions,
                            triangulate_landmarks, usable_rows)
-from vislam.graph.isam2 import run_fixed_lag, run_isam2
+from vislam.graph.isam2 import final_relinearizations, isam2_solve, run_fixed_lag, run_isam2
 from vislam.graph.marginals import gtsam_marginals, information_solver, schur_marginals, whitened_system
 from vislam.graph.pose_conversions import L, X, estimation_error
 from vislam.graph.settings import SmootherSettings
@@ -86,6 +86,45 @@ def test_fixed_lag_longer_than_the_drive_is_isam2(noisy):
     assert ate_rmse(short.poses, noisy.poses) < 2 * ate_rmse(full.poses, noisy.poses)
     assert np.all(np.linalg.eigvalsh(short.pose_cov) > 0)
 
+
+
+
+@pytest.mark.parametrize("factorization", ["cholesky", "qr"])
+def test_final_relinearizations_are_isam2s_forced_full_updates(noisy, factorization):
+    """smoother-isam2's final rounds, solved in batch, are what iSAM2 itself computes with
+    ``force_relinearize`` and ``forceFullSolve`` updates and ``calculateBestEstimate``: the
+    same factors given to a fresh ISAM2 at a linearisation point away from the solution, whose
+    first solution is therefore exact (no stale back-substitution)."""
+    from vislam.ekf.runner import prepare_sequence
+
+    settings = SmootherSettings(isam2_factorization=factorization)
+    cleaned, _ = prepare_sequence(noisy.sequence, CONFIG)
+    result = isam2_solve(cleaned, CONFIG, settings)
+    theta = gtsam.Values()
+    rng = np.random.default_rng(0)
+    for key in result.values.keys():  # a point the Gauss-Newton steps have work to do from
+        if gtsam.Symbol(key).chr() == ord("x"):
+            theta.insert(key, result.values.atPose3(key).retract(rng.normal(0, 0.01, 6)))
+        else:
+            theta.insert(key, result.values.atPoint3(key) + rng.normal(0, 0.05, 3))
+    params = gtsam.ISAM2Params()
+    params.enableRelinearization = False
+    params.setFactorization(factorization.upper())
+    isam = gtsam.ISAM2(params)
+    isam.update(result.factors, theta)
+    forced = gtsam.ISAM2UpdateParams()
+    forced.force_relinearize = True
+    forced.forceFullSolve = True
+    for rounds in range(3):
+        best = isam.calculateBestEstimate()
+        ours = final_relinearizations(result.factors, theta, rounds, factorization)
+        for key in result.values.keys():
+            if gtsam.Symbol(key).chr() == ord("x"):
+                d = best.atPose3(key).localCoordinates(ours.atPose3(key))
+            else:
+                d = best.atPoint3(key) - ours.atPoint3(key)
+            assert np.abs(d).max() < 1e-7, (rounds, gtsam.Symbol(key).string())
+        isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), forced)
 
 
 def test_rejection_rounds_stop_early_and_the_last_converges(noisy):
