@@ -259,18 +259,19 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
                 pending[j] = i
                 continue
             pair = rows.subset(np.array([first, i]))
-            point = triangulate_landmarks(poses, calib, pair, M)
-            depths = camera_points(poses, point, calib, pair)[:, 2]
+            alone = StereoRows(pair.frame, np.zeros(2, dtype=np.int64), pair.z)  # as track 0:
+            point = triangulate_landmarks(poses, calib, alone, 1)  # not an (M, 3) array each
+            depths = camera_points(poses, point, calib, alone)[:, 2]
             if not np.all(depths >= settings.min_depth):
                 dropped[j] = True
                 rejected[rows.frame[first]] += 1
                 rejected[k] += 1
                 continue
-            landmark_est[j] = point[j]
+            landmark_est[j] = point[0]
             in_graph[j] = True
             initialised[k] += 1
-            values.insert(L(j), point[j])
-            graph.add(gtsam.PriorFactorPoint3(L(j), point[j], noise.landmark_prior))
+            values.insert(L(j), point[0])
+            graph.add(gtsam.PriorFactorPoint3(L(j), point[0], noise.landmark_prior))
             noise.add_stereo_factors(graph, pair)
             used[[first, i]] = True
             last_added[j] = k
