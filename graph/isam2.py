@@ -30,8 +30,9 @@ Gauss-Newton steps from the full solution, every variable relinearised: what iSA
 relinearisations with a full solve compute, solved in batch, :func:`final_relinearizations`)
 decide on the full solution, so the result does not depend on that threshold (with
 ``calculateEstimate`` it did, and with iSAM2's own final updates a little: their first step
-was the stale solution; docs/findings.md). The fixed-lag smoother keeps GTSAM's threshold, as it reports each variable when it leaves the window, and reads the
-variables still in the window at the end from the full back-substitution too.
+was the stale solution; docs/findings.md). The fixed-lag smoother keeps GTSAM's threshold, as
+it reports each variable when it leaves the window, and reads the variables still in the
+window at the end from the full back-substitution too.
 
 The fixed-lag smoother (GTSAM's ``IncrementalFixedLagSmoother``, iSAM2 underneath) runs the same
 loop but keeps only the last ``settings.fixed_lag_s`` seconds: a pose leaves the window that
@@ -95,8 +96,8 @@ _GATE_FACTOR = 4.0
 class Isam2Result:
     """What :func:`isam2_solve` leaves: its estimate and the factors it holds."""
 
-    #: The nonlinear factors; ``values``: the final estimate (smoother-isam2 only).
-    factors: gtsam.NonlinearFactorGraph
+    #: smoother-isam2 only (None for the fixed lag): the nonlinear factors and the final estimate.
+    factors: gtsam.NonlinearFactorGraph | None
     values: gtsam.Values | None
     poses: np.ndarray
     landmarks: np.ndarray
@@ -333,8 +334,8 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
               "held_observations": n_held}
     if window is not None:
         return Isam2Result(
-            factors=isam.getFactors(), values=None, poses=window.poses, landmarks=window.landmarks, tracks=tracks,
-            rows=rows.subset(used), rejected=rejected, initialised=initialised, timing=timing,
+            factors=None, values=None, poses=window.poses, landmarks=window.landmarks,
+            tracks=tracks, rows=rows.subset(used), rejected=rejected, initialised=initialised, timing=timing,
             n_gap_priors=n_prior, pose_cov=window.pose_cov, landmark_cov=window.landmark_cov,
         )
     tick = time.perf_counter()
