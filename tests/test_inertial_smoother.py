@@ -357,7 +357,9 @@ def test_one_pass_marginals_equal_gtsam_marginals():
     for k in range(0, drive.n_frames - 1, 7):
         keys = gtsam.KeyVector([X(k), V(k), B(k), X(k + 1), V(k + 1), B(k + 1)])
         ref = m.jointMarginalCovariance(keys).fullMatrix()
-        tol = 1e-12 * np.abs(ref).max()
+        # two factorisations of one information matrix: they agree to rounding, which is
+        # about 1e-12 of the block's largest entry (3.7e-15 against 2.5e-3 in one CI run)
+        tol = 1e-10 * np.abs(ref).max()
         np.testing.assert_allclose(P[k], ref[:15, :15], rtol=1e-6, atol=tol)
         np.testing.assert_allclose(fm.P_next[k], ref[:15, 15:], rtol=1e-6, atol=tol)
     for i in range(0, sol.tracks.size, 5):
