@@ -39,7 +39,7 @@ def main() -> None:
     for name, cfg in [('white (EM)', model_config(FilterConfig(), dataclasses.replace(model, velocity_correlation_time=None, gyro_correlation_time=None)).replace(pixel_sigma=model.pixel_sigma)),
                       ('long-run (estimators)', model_config(FilterConfig(), model))]:
         sol = solve_smoother(s, cfg, SmootherSettings(compute_marginals=False))
-        st = extrinsic_step(sol, Xid)
+        st = extrinsic_step(sol, Xid, cfg)
         d = theta_between(Xid, Xh)
         S = st.information
         cond = float(d[:3] @ S[:3,:3] @ d[:3])

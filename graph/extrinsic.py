@@ -27,6 +27,24 @@ uncertainty the drive leaves on the extrinsic, from every factor (vision, motion
 A component whose marginal standard deviation under a weak prior (``PRIOR_SIGMA``) stays
 above ``UNDETERMINED_SIGMA`` is *undetermined*: the drive cannot say (the vertical lever arm of
 a planar drive); its value is kept and only the others are stepped (conditionally on it).
+
+Excitation. ``S`` is read at the estimate, and there it can hold information the drive does
+not have. A lever arm ``l`` shows only through rotation: over an interval the camera moves by
+``[w dt]x l`` more than the point whose velocity is measured, so ``l`` along an axis the drive
+never turns away from is unobservable. On a planar drive the estimated roll and pitch still
+wobble with the gyro's noise, and ``S`` takes that wobble for rotation: on simulated rooms it
+gave the vertical lever arm a sigma of 0.2 m and EM walked it 2-4 m from the truth, a
+"refuted" file extrinsic that was the true one. So the translation is also held to the
+information the drive's own rotation can give at best, with vision taken as exact
+(:func:`rotation_excitation_sigma`)::
+
+    W   = sum_k w_k w_k^T - (n + 2 sqrt(2 n)) Sigma_g          (interval rates, noise removed)
+    I_l = sum_m lambda_m [u_m]x^T Sigma_v^-1 [u_m]x              (W = sum_m lambda_m u_m u_m^T, lambda_m >= 0)
+
+``Sigma_g`` and ``Sigma_v`` the intervals' gyro and velocity noise covariances; ``2 sqrt(2 n)`` is two
+standard deviations of the noise's own sum of squares, so that a drive whose rates about an
+axis are noise gives no information there. A translation component whose standard deviation
+under ``I_l`` (and the weak prior) is above ``UNDETERMINED_SIGMA`` is undetermined as well.
 """
 
 from __future__ import annotations
@@ -50,6 +68,52 @@ PRIOR_SIGMA = np.array([10.0, 10.0, 10.0, 1.0, 1.0, 1.0])
 UNDETERMINED_SIGMA = np.array([0.3, 0.3, 0.3, 0.05, 0.05, 0.05])
 
 
+def rotation_excitation_sigma(angular_velocity: np.ndarray, gyro_sigma, velocity_sigma,
+                              cam_T_imu: np.ndarray, z: float = 2.0) -> np.ndarray:
+    """(3,) the standard deviation of theta's translation (``dt``, camera frame) that the
+    drive's rotation alone allows at best (module docstring, "Excitation"): from the angular
+    rates ``angular_velocity`` (n, 3), rad/s, IMU frame, one per interval, with noise
+    ``gyro_sigma`` (rad/s) and velocity noise ``velocity_sigma`` (m/s), one value or three each
+    (per interval: the sigmas the smoother uses), under the weak
+    prior ``PRIOR_SIGMA``. ``z`` noise standard deviations of the gyro's sum of squares are
+    taken off as well."""
+    w = np.asarray(angular_velocity, dtype=float)
+    w = w[np.all(np.isfinite(w), axis=1)]
+    n = len(w)
+    sg = np.broadcast_to(np.asarray(gyro_sigma, dtype=float), (3,))
+    sv = np.broadcast_to(np.asarray(velocity_sigma, dtype=float), (3,))
+    W = w.T @ w - (n + z * np.sqrt(2.0 * n)) * np.diag(sg ** 2)
+    lam, U = np.linalg.eigh(0.5 * (W + W.T))
+    D = np.diag(1.0 / sv ** 2)
+    info = sum(max(float(lm), 0.0) * hat(u).T @ D @ hat(u) for lm, u in zip(lam, U.T))
+    cov_l = np.linalg.inv(info + np.diag(1.0 / PRIOR_SIGMA[:3] ** 2))
+    R = np.asarray(cam_T_imu, dtype=float)[:3, :3]  # dt = -R dl at a fixed rotation
+    return np.sqrt(np.diag(R @ cov_l @ R.T))
+
+
+def determined_components(covariance: np.ndarray, excitation_sigma: np.ndarray | None) -> np.ndarray:
+    """(6,) bool: the components of theta the drive determines: marginal standard deviation
+    at most ``UNDETERMINED_SIGMA``, and for the translation also under the drive's rotation
+    alone (``excitation_sigma``, :func:`rotation_excitation_sigma`; None: not checked)."""
+    determined = np.sqrt(np.diag(covariance)) <= UNDETERMINED_SIGMA
+    if excitation_sigma is not None:
+        determined[:3] &= np.asarray(excitation_sigma) <= UNDETERMINED_SIGMA[:3]
+    return determined
+
+
+def excitation_of(solution, cam_T_imu: np.ndarray, config) -> np.ndarray | None:
+    """:func:`rotation_excitation_sigma` of a solved smoother's drive: its interval angular
+    rates (``solution.twist``, the pairing applied, the gyro bias it removed taken off) under
+    ``config``, the FilterConfig it was solved with (EM's: interval sigmas); None without a
+    config."""
+    if config is None:
+        return None
+    rates = solution.twist[:, 3:]
+    if solution.gyro_bias is not None:
+        rates = rates - np.asarray(solution.gyro_bias, dtype=float)
+    return rotation_excitation_sigma(rates, config.gyro_sigmas, config.velocity_sigmas, cam_T_imu)
+
+
 @dataclass
 class ExtrinsicStep:
     """One Gauss-Newton step on the extrinsic at a solved smoother."""
@@ -58,6 +122,9 @@ class ExtrinsicStep:
     information: np.ndarray  # (6, 6) S: the profile information of theta
     covariance: np.ndarray  # (6, 6) marginal covariance of theta (weak prior included)
     determined: np.ndarray  # (6,) bool
+    #: (3,) the translation's standard deviation from the drive's rotation alone (None: not
+    #: checked; :func:`rotation_excitation_sigma`)
+    excitation_sigma: np.ndarray | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -140,9 +207,11 @@ def linear_system(solution, cam_T_imu: np.ndarray) -> ExtrinsicSystem:
     return ExtrinsicSystem(A=A, b=b, stereo=stereo, A_t=J_pose @ theta_map(cam_T_imu))
 
 
-def extrinsic_step(solution, cam_T_imu: np.ndarray) -> ExtrinsicStep:
+def extrinsic_step(solution, cam_T_imu: np.ndarray, config) -> ExtrinsicStep:
     """The profile Gauss-Newton step and covariance of the extrinsic at a solved smoother
-    (:class:`graph.smoother.SmootherSolution`, solved with ``cam_T_imu``); module docstring."""
+    (:class:`graph.smoother.SmootherSolution`, solved with ``cam_T_imu`` under ``config``, the
+    FilterConfig whose noise levels the excitation check reads; None skips that check);
+    module docstring."""
     system = linear_system(solution, cam_T_imu)
     A, b, stereo, A_t = system.A, system.b, system.stereo, system.A_t
     B = np.asarray(A[stereo].T @ A_t)  # (n, 6) A_x^T A_t
@@ -155,28 +224,31 @@ def extrinsic_step(solution, cam_T_imu: np.ndarray) -> ExtrinsicStep:
     prior = np.diag(1.0 / PRIOR_SIGMA ** 2)
     cov = np.linalg.inv(S + prior)
     cov = 0.5 * (cov + cov.T)
-    determined = np.sqrt(np.diag(cov)) <= UNDETERMINED_SIGMA
+    excitation = excitation_of(solution, cam_T_imu, config)
+    determined = determined_components(cov, excitation)
     step = np.zeros(6)
     if determined.any():
         d = np.flatnonzero(determined)
         step[d] = np.linalg.solve(S[np.ix_(d, d)] + prior[np.ix_(d, d)], g[d])
-    return ExtrinsicStep(step=step, information=S, covariance=cov, determined=determined)
+    return ExtrinsicStep(step=step, information=S, covariance=cov, determined=determined,
+                         excitation_sigma=excitation)
 
 
-def extrinsic_fold_gain(solution, cam_T_imu: np.ndarray, other: np.ndarray,
+def extrinsic_fold_gain(solution, cam_T_imu: np.ndarray, other: np.ndarray, config,
                         stretch_s: float = 10.0):
     """The identified extrinsic's out-of-sample gain over ``other`` (the file's), by
     leave-one-stretch-out cross-validation of the profile likelihood at a smoother solved with
     ``cam_T_imu`` (:func:`graph.out_of_sample.fold_gain`; folds: ``stretch_s`` stretches of the
     drive, :func:`graph.stretches.stretch_labels`). The components fitted are those the drive
-    determines (:func:`extrinsic_step`), under the weak prior ``PRIOR_SIGMA``."""
+    determines (:func:`extrinsic_step`, ``config`` as there), under the weak prior
+    ``PRIOR_SIGMA``."""
     from vislam.graph.out_of_sample import fold_gain, term_rows
 
     system = linear_system(solution, cam_T_imu)
     A_p, b_p, folds = term_rows(solution, system.stereo, system.A_t, stretch_s)
     prior = np.diag(1.0 / PRIOR_SIGMA ** 2)
     cov = np.linalg.inv(A_p.T @ A_p + prior)
-    determined = np.sqrt(np.diag(cov)) <= UNDETERMINED_SIGMA
+    determined = determined_components(cov, excitation_of(solution, cam_T_imu, config))
     return fold_gain(A_p, b_p, folds, theta_between(cam_T_imu, other), determined, prior)
 
 
@@ -212,5 +284,6 @@ def lever_arm_covariance(cam_T_imu: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return G @ cov @ G.T
 
 
-__all__ = ["ExtrinsicStep", "ExtrinsicSystem", "linear_system", "extrinsic_step", "extrinsic_fold_gain", "stereo_rows", "perturb_cam_T_imu", "theta_map", "lever_arm",
+__all__ = ["ExtrinsicStep", "ExtrinsicSystem", "linear_system", "extrinsic_step", "extrinsic_fold_gain",
+           "rotation_excitation_sigma", "determined_components", "excitation_of", "stereo_rows", "perturb_cam_T_imu", "theta_map", "lever_arm",
            "lever_arm_covariance", "theta_between", "mahalanobis", "PRIOR_SIGMA", "UNDETERMINED_SIGMA"]

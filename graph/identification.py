@@ -474,7 +474,7 @@ def em_noise(seq: Sequence, config: FilterConfig, settings: SmootherSettings, *,
         state.update(solution=solution, steps=state["steps"] + 1, cfg=cfg, stats=stats,
                      theta_in=np.array(theta))
         if extrinsic:
-            step = extrinsic_step(solution, state["cam_T_imu"])
+            step = extrinsic_step(solution, state["cam_T_imu"], cfg)
             state["extrinsic"] = step
             state["cam_T_imu"] = perturb_cam_T_imu(state["cam_T_imu"], step.step)
         g = stats.interval_sigma  # [rot; trans]
@@ -518,7 +518,7 @@ def em_noise(seq: Sequence, config: FilterConfig, settings: SmootherSettings, *,
     cfg = _with_sigmas(config, theta)
     solution = solve(cfg)
     stats = noise_statistics(solution, cfg)
-    final = extrinsic_step(solution, state["cam_T_imu"]) if extrinsic else None
+    final = extrinsic_step(solution, state["cam_T_imu"], cfg) if extrinsic else None
     return EMResult(config=cfg, stats=stats, solution=solution, steps=state["steps"] + 1,
                     converged=converged, cam_T_imu=state["cam_T_imu"], extrinsic=final)
 
@@ -626,7 +626,7 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
         # predict that stretch better, in sum, than the file's does (graph.out_of_sample).
         from vislam.graph.extrinsic import extrinsic_fold_gain
 
-        oos = extrinsic_fold_gain(em.solution, em.cam_T_imu, file_T)
+        oos = extrinsic_fold_gain(em.solution, em.cam_T_imu, file_T, em.config)
         keep_file = d2 <= threshold or not oos.improves
         extrinsic_test = {"statistic": d2, "dof": k, "threshold": threshold,
                           "out_of_sample": oos.to_dict(),

@@ -23,6 +23,7 @@ from vislam.graph.extrinsic import (
     lever_arm_covariance,
     linear_system,
     perturb_cam_T_imu,
+    rotation_excitation_sigma,
     theta_between,
 )
 from vislam.graph.factors import stereo_residuals
@@ -128,6 +129,51 @@ def test_lever_arm_covariance_is_the_first_order_propagation(which):
     np.testing.assert_allclose(arms.mean(axis=0), lever_arm(C), atol=5e-3)
 
 
+def _excitation_by_rows(rates, velocity_sigma, C):
+    """The translation's covariance the hard way: one least-squares row block per interval,
+    the camera moving by ``[w dt]x l`` beyond the measured point (``dt`` cancels against the
+    velocity noise's ``sigma dt``), mapped to theta by finite differences of the lever arm."""
+    J = np.vstack([np.cross(w, np.eye(3)).T / velocity_sigma[:, None] for w in rates])
+    info = J.T @ J + np.diag(1.0 / PRIOR_SIGMA[:3] ** 2)
+    G = _lever_arm_jacobian(C)[:, :3]  # d lever arm / d theta translation
+    Gi = np.linalg.inv(G)
+    return Gi @ np.linalg.inv(info) @ Gi.T
+
+
+@pytest.mark.parametrize("which", ["kitti", "random"])
+def test_rotation_excitation_is_the_lever_arms_least_squares_information(which):
+    """Noise-free rates, no noise margin: the bound equals the least-squares covariance of
+    the lever arm from rows [w]x l, taken to theta's translation (camera frame)."""
+    rng = np.random.default_rng(7)
+    C = KITTI_CAM_T_IMU.copy() if which == "kitti" else random_rigid(rng, translation=2.0)
+    rates = rng.normal(size=(200, 3)) * np.array([0.02, 0.05, 0.3])
+    sv = np.array([0.1, 0.05, 0.2])
+    expected = np.sqrt(np.diag(_excitation_by_rows(rates, sv, C)))
+    got = rotation_excitation_sigma(rates, 0.0, sv, C, z=0.0)
+    np.testing.assert_allclose(got, expected, rtol=1e-6)
+
+
+def test_a_drive_that_only_yaws_cannot_place_its_lever_arm_along_the_yaw_axis():
+    """Rates about x and y that are the gyro's noise (a planar drive): the lever arm along z
+    has no information beyond the weak prior, whatever the noise happens to give; the other
+    two are placed to a decimetre. Real roll and pitch rates (twice the noise) place it."""
+    rng = np.random.default_rng(3)
+    n, sg, sv = 1500, 0.03, 0.15
+    yaw = 0.5 * np.sin(np.linspace(0.0, 40.0, n))
+    C = KITTI_CAM_T_IMU  # camera y is the IMU's -z
+    for seed in range(5):
+        noise = np.random.default_rng(seed).normal(scale=sg, size=(n, 3))
+        planar = np.column_stack([np.zeros(n), np.zeros(n), yaw]) + noise
+        sd = rotation_excitation_sigma(planar, sg, sv, C)
+        assert sd[1] > UNDETERMINED_SIGMA[1] and sd[1] == pytest.approx(PRIOR_SIGMA[1], rel=1e-3), sd
+        assert np.all(sd[[0, 2]] < 0.15), sd
+    # without the noise margin the noise's own energy counts as rotation: the bound would
+    # then place the vertical lever arm, as the profile at the estimate did
+    assert rotation_excitation_sigma(planar, 0.0, sv, C)[1] < UNDETERMINED_SIGMA[1]
+    tilting = planar + np.column_stack([2 * sg * rng.standard_normal((n, 2)), np.zeros(n)])
+    assert np.all(rotation_excitation_sigma(tilting, sg, sv, C) < 0.15)
+
+
 # --- the theta Jacobian and the profile covariance, on a short drive ---------------------------
 @pytest.fixture(scope="module")
 def short_solution():
@@ -178,7 +224,7 @@ def test_profile_covariance_is_the_theta_block_of_the_joint_inverse(short_soluti
     _, _, solution = short_solution
     C = np.array(solution.calibration.cam_T_imu)
     system = linear_system(solution, C)
-    step = extrinsic_step(solution, C)
+    step = extrinsic_step(solution, C, None)
     A_theta = np.zeros((system.A.shape[0], 6))
     A_theta[system.stereo] = system.A_t
     J = sp.hstack([system.A, sp.csr_matrix(A_theta)]).tocsr()  # [A_x A_theta], every factor
