@@ -239,6 +239,7 @@ def identify_models(sequences: list[BenchSequence], config: FilterConfig,
     cannot be identified (EstimationError: too short, the smoother fails) is benchmarked as
     given, with a warning and ``identification_failed`` in its record."""
     from vislam.eval.model_cache import identified_model
+    from vislam.graph.memory import release_freed_memory
 
     out = []
     for bs in sequences:
@@ -257,6 +258,10 @@ def identify_models(sequences: list[BenchSequence], config: FilterConfig,
             given.model["identification_failed"] = str(exc)
             out.append(given)
             continue
+        if not found.cached:
+            # the identification's solves are freed: their heap goes back to the system before
+            # the estimators' workers start (forked from this process, each would carry it)
+            release_freed_memory()
         record = {"cached": found.cached, "cache_entry": None if found.path is None else str(found.path),
                   "identification": found.report}
         out += apply_model_to([bs], found.model, config, "identified", record)

@@ -76,6 +76,7 @@ from vislam.graph.factors import (
 from vislam.ekf.numerics import NumericalGuard
 from vislam.ekf.runner import finish_estimate, prepare_sequence
 from vislam.graph.marginals import schur_marginals
+from vislam.graph.memory import release_freed_memory
 from vislam.ekf.conventions import gtsam_cov_to_estimate
 from vislam.graph.pose_conversions import L, X, estimation_error, named_error, to_pose3
 from vislam.graph.settings import SmootherSettings
@@ -343,6 +344,7 @@ def isam2_solve(seq: Sequence, config: FilterConfig, settings: SmootherSettings,
     factors = gtsam.NonlinearFactorGraph(isam.getFactorsUnsafe())
     theta = gtsam.Values(isam.getLinearizationPoint())
     del isam  # the final rounds are solved in batch: the Bayes tree is not needed any more
+    release_freed_memory()  # its blocks, else kept by the C heap (graph.memory)
     try:
         estimate = final_relinearizations(factors, theta, settings.isam2_final_relinearizations,
                                           settings.isam2_factorization)

@@ -70,6 +70,7 @@ from vislam.graph.gyro_bias import (BIAS_KEY, GyroBiasModel, bias_corrections, c
 from vislam.graph.speed_scale import S, SpeedScaleModel, scale_values
 from vislam.ekf.numerics import NumericalGuard
 from vislam.ekf.runner import finish_estimate, prepare_sequence
+from vislam.graph.memory import release_freed_memory
 from vislam.graph.marginals import batch_marginals, linearise
 from vislam.graph.pose_conversions import estimation_error, named_error
 from vislam.graph.settings import INITIALISERS, LINEAR_SOLVERS, SmootherSettings
@@ -595,6 +596,7 @@ def _run_smoother(seq: Sequence, config: FilterConfig, *, init: str | None,
     est.landmarks = sol.landmarks
     if settings.compute_marginals:
         tick = time.perf_counter()
+        release_freed_memory()  # the solves' Bayes nets, else kept by the C heap (graph.memory)
         graph, solution = (problem.graph, sol.values) if sol.bias_model is None else fix_bias(
             problem, sol.values, sol.deltas, sol.noise, sol.bias_model)
         graph = gaussian_stereo(graph, rows, 1 + len(sol.deltas), sol.noise)
