@@ -55,8 +55,7 @@ def test_the_smoother_is_consistent_on_the_room(room_study):
     assert err.max() < 0.1
 
 
-@pytest.mark.parametrize("seed", [1, 2])
-def test_a_platform_that_only_turns_about_the_vertical_keeps_its_true_extrinsic(seed):
+def test_a_platform_that_only_turns_about_the_vertical_keeps_its_true_extrinsic():
     """The room's platform never pitches or rolls, so its vertical lever arm cannot be placed:
     the identification names it undetermined (graph.extrinsic, "Excitation") and keeps the
     file's extrinsic, which is the true one. Before, the estimated roll and pitch's wobble
@@ -66,7 +65,7 @@ def test_a_platform_that_only_turns_about_the_vertical_keeps_its_true_extrinsic(
     from vislam.graph.extrinsic import lever_arm
     from vislam.graph.identification import identify_model
 
-    result = simulate(scenario_config("room", n_frames=1500, seed=seed))
+    result = simulate(scenario_config("room", n_frames=1500, seed=1))
     fit = identify_model(result.sequence, radial=False)
     assert "ty" in fit.cam_T_imu_undetermined  # camera y: the IMU's vertical
     assert fit.extrinsic_test["decision"].startswith("file's kept"), fit.extrinsic_test
