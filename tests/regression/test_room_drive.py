@@ -39,7 +39,9 @@ def test_identification_recovers_the_room_noise_levels(room_study):
     truth = result.model
     assert model.velocity_pairing == truth.velocity_pairing
     # Every sigma within 10 % (measured at 600 frames: velocity +8 +1 +9.5 %, gyro +9 -4 +3 %,
-    # pixels +1 %; at 2,000 frames at most +9 %, benchmarks/drive_shapes.py).
+    # pixels +1 %). Not at 2,000 frames: 5-13 % high on 5 seeds, as the room's "mean" pairing
+    # correlates consecutive intervals and EM takes them as independent (docs/findings.md,
+    # "Freed Bayes trees stay in the C heap"; benchmarks/drive_shapes.py room:2000).
     np.testing.assert_allclose(model.velocity_sigma, truth.velocity_sigma, rtol=0.10)
     np.testing.assert_allclose(model.gyro_sigma, truth.gyro_sigma, rtol=0.10)
     np.testing.assert_allclose(model.pixel_sigma, truth.pixel_sigma, rtol=0.10)
