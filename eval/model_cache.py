@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 
 #: Changes whenever the identification would give a different answer on the same input, to a
 #: value never used before (so that no old cache entry can match it).
-IDENTIFICATION_VERSION = "2026-12-04.38-lever-arm-excitation"
+IDENTIFICATION_VERSION = "2026-12-04.38b-lever-arm-excitation-report"
 
 
 @dataclass

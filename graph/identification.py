@@ -628,8 +628,12 @@ def identify_model(seq: Sequence, config: FilterConfig = FilterConfig(),
 
         oos = extrinsic_fold_gain(em.solution, em.cam_T_imu, file_T, em.config)
         keep_file = d2 <= threshold or not oos.improves
+        excitation = em.extrinsic.excitation_sigma
         extrinsic_test = {"statistic": d2, "dof": k, "threshold": threshold,
                           "out_of_sample": oos.to_dict(),
+                          # dt's sigmas from the drive's rotation alone (graph.extrinsic)
+                          "translation_sigma_from_rotation": None if excitation is None
+                          else [float(x) for x in excitation],
                           "criterion": f"BIC ({k} ln n, n = {n_obs} stereo observations)",
                           "chi2_threshold": float(chi2.ppf(EXTRINSIC_TEST_LEVEL, k)) if k else 0.0,
                           "level": EXTRINSIC_TEST_LEVEL,

@@ -353,3 +353,22 @@ def test_short_default_drives_keep_their_true_extrinsic(frames, seed):
     assert test["statistic"] > test["chi2_threshold"]  # what the chi-square test refuted
     np.testing.assert_array_equal(out.sequence.calibration.cam_T_imu,
                                   bs.sequence.calibration.cam_T_imu)
+
+
+def test_calibrate_says_when_the_drives_rotation_is_why_a_lever_arm_is_undetermined():
+    """The report's extrinsic line names the components the drive's rotation cannot place
+    (graph.extrinsic.rotation_excitation_sigma) and says why; nothing is added where the
+    rotation is not the reason, or where it was not checked."""
+    from types import SimpleNamespace
+
+    from vislam.eval.commands.calibrate import _rotation_reason
+
+    planar = SimpleNamespace(cam_T_imu_undetermined=("ty",), extrinsic_test={
+        "translation_sigma_from_rotation": [0.09, 10.0, 0.08]})
+    text = _rotation_reason(planar)
+    assert "ty within 10 m" in text and "tx" not in text and "rotation" in text
+    by_vision = SimpleNamespace(cam_T_imu_undetermined=("ty",), extrinsic_test={
+        "translation_sigma_from_rotation": [0.09, 0.02, 0.08]})
+    assert _rotation_reason(by_vision) == ""
+    unchecked = SimpleNamespace(cam_T_imu_undetermined=("ty",), extrinsic_test={})
+    assert _rotation_reason(unchecked) == ""

@@ -203,6 +203,25 @@ def _motion_correlation_line(m: dict) -> str:
             f"({m['criterion']}): {kept}")
 
 
+def _rotation_reason(fit) -> str:
+    """Why translation components are undetermined where the drive's rotation is the reason
+    (graph.extrinsic.rotation_excitation_sigma): "" otherwise."""
+    from vislam.ekf.model import EXTRINSIC_COMPONENTS
+    from vislam.graph.extrinsic import UNDETERMINED_SIGMA
+
+    sigma = (fit.extrinsic_test or {}).get("translation_sigma_from_rotation")
+    if sigma is None:
+        return ""
+    by_rotation = [f"{n} within {s:.2g} m"
+                   for n, s, limit in zip(EXTRINSIC_COMPONENTS, sigma, UNDETERMINED_SIGMA)
+                   if n in fit.cam_T_imu_undetermined and s > limit]
+    if not by_rotation:
+        return ""
+    return (f"; the drive's rotation alone places {', '.join(by_rotation)} at best (it turns "
+            f"about no other axis beyond the gyro's noise, and a lever arm shows only through "
+            f"rotation)")
+
+
 def undetermined_lines(fit) -> list[str]:
     """The noise levels the drive cannot determine, each with the value the model takes and
     why (graph.parameter_uncertainty); a line saying so when every level is determined."""
@@ -327,7 +346,8 @@ def report(name: str, frames: int, fit, config) -> str:
     if fit.cam_T_imu_undetermined:
         names = ", ".join(fit.cam_T_imu_undetermined)
         lines.append(f"extrinsic: the drive cannot determine {names} "
-                     f"(of {', '.join(EXTRINSIC_COMPONENTS)}); the file's value is kept there")
+                     f"(of {', '.join(EXTRINSIC_COMPONENTS)}); the file's value is kept there"
+                     f"{_rotation_reason(fit)}")
     lines += _verdict(fit)
     lines += undetermined_lines(fit)
     for what, found, given in (("velocity sigma", fit.velocity_sigma, given_v),
