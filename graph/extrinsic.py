@@ -38,12 +38,12 @@ gave the vertical lever arm a sigma of 0.2 m and EM walked it 2-4 m from the tru
 information the drive's own rotation can give at best, with vision taken as exact
 (:func:`rotation_excitation_sigma`)::
 
-    W   = sum_k w_k w_k^T - (n + 2 sqrt(2 n)) Sigma_g          (interval rates, noise removed)
-    I_l = sum_m lambda_m [u_m]x^T Sigma_v^-1 [u_m]x              (W = sum_m lambda_m u_m u_m^T, lambda_m >= 0)
+    W   = sum_k w_k w_k^T - (n + 2 sqrt(2 n)) Sigma_g    (interval rates, noise removed)
+    I_l = sum_m lambda_m [u_m]x^T Sigma_v^-1 [u_m]x        (W = sum_m lambda_m u_m u_m^T, lambda_m >= 0)
 
-``Sigma_g`` and ``Sigma_v`` the intervals' gyro and velocity noise covariances; ``2 sqrt(2 n)`` is two
-standard deviations of the noise's own sum of squares, so that a drive whose rates about an
-axis are noise gives no information there. A translation component whose standard deviation
+``Sigma_g`` and ``Sigma_v`` the intervals' gyro and velocity noise covariances; ``2 sqrt(2 n)``
+is two standard deviations of the noise's own sum of squares, so that a drive whose rates
+about an axis are noise gives no information there. A translation component whose standard deviation
 under ``I_l`` (and the weak prior) is above ``UNDETERMINED_SIGMA`` is undetermined as well.
 """
 
@@ -74,9 +74,8 @@ def rotation_excitation_sigma(angular_velocity: np.ndarray, gyro_sigma, velocity
     drive's rotation alone allows at best (module docstring, "Excitation"): from the angular
     rates ``angular_velocity`` (n, 3), rad/s, IMU frame, one per interval, with noise
     ``gyro_sigma`` (rad/s) and velocity noise ``velocity_sigma`` (m/s), one value or three each
-    (per interval: the sigmas the smoother uses), under the weak
-    prior ``PRIOR_SIGMA``. ``z`` noise standard deviations of the gyro's sum of squares are
-    taken off as well."""
+    (per interval: the sigmas the smoother uses), under the weak prior ``PRIOR_SIGMA``. ``z``
+    noise standard deviations of the gyro's sum of squares are taken off as well."""
     w = np.asarray(angular_velocity, dtype=float)
     w = w[np.all(np.isfinite(w), axis=1)]
     n = len(w)
@@ -91,7 +90,8 @@ def rotation_excitation_sigma(angular_velocity: np.ndarray, gyro_sigma, velocity
     return np.sqrt(np.diag(R @ cov_l @ R.T))
 
 
-def determined_components(covariance: np.ndarray, excitation_sigma: np.ndarray | None) -> np.ndarray:
+def determined_components(covariance: np.ndarray,
+                          excitation_sigma: np.ndarray | None) -> np.ndarray:
     """(6,) bool: the components of theta the drive determines: marginal standard deviation
     at most ``UNDETERMINED_SIGMA``, and for the translation also under the drive's rotation
     alone (``excitation_sigma``, :func:`rotation_excitation_sigma`; None: not checked)."""
@@ -284,6 +284,8 @@ def lever_arm_covariance(cam_T_imu: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return G @ cov @ G.T
 
 
-__all__ = ["ExtrinsicStep", "ExtrinsicSystem", "linear_system", "extrinsic_step", "extrinsic_fold_gain",
-           "rotation_excitation_sigma", "determined_components", "excitation_of", "stereo_rows", "perturb_cam_T_imu", "theta_map", "lever_arm",
-           "lever_arm_covariance", "theta_between", "mahalanobis", "PRIOR_SIGMA", "UNDETERMINED_SIGMA"]
+__all__ = ["ExtrinsicStep", "ExtrinsicSystem", "linear_system", "extrinsic_step",
+           "extrinsic_fold_gain", "rotation_excitation_sigma", "determined_components",
+           "excitation_of", "stereo_rows", "perturb_cam_T_imu", "theta_map", "lever_arm",
+           "lever_arm_covariance", "theta_between", "mahalanobis", "PRIOR_SIGMA",
+           "UNDETERMINED_SIGMA"]

@@ -121,7 +121,8 @@ def test_final_relinearizations_are_isam2s_forced_full_updates(noisy, factorizat
             d = best.atPose3(key).localCoordinates(ours.atPose3(key))
             assert np.abs(d).max() < 1e-7, (rounds, gtsam.Symbol(key).string())
         for key in points:
-            assert np.abs(best.atPoint3(key) - ours.atPoint3(key)).max() < 1e-7, (rounds, gtsam.Symbol(key).string())
+            assert np.abs(best.atPoint3(key) - ours.atPoint3(key)).max() < 1e-7, \
+                (rounds, gtsam.Symbol(key).string())
         isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), forced)
 
 

@@ -209,7 +209,7 @@ def _rotation_reason(fit) -> str:
     from vislam.ekf.model import EXTRINSIC_COMPONENTS
     from vislam.graph.extrinsic import UNDETERMINED_SIGMA
 
-    sigma = (fit.extrinsic_test or {}).get("translation_sigma_from_rotation")
+    sigma = fit.extrinsic_test.get("translation_sigma_from_rotation")
     if sigma is None:
         return ""
     by_rotation = [f"{n} within {s:.2g} m"
